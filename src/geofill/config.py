@@ -1,0 +1,217 @@
+"""One typed configuration object with the paper's defaults, dumpable/loadable as JSON.
+
+Every stage reads only its own section. Unknown keys in a JSON file are errors (a typo must not
+silently fall back to a default)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import types
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+from .errors import ConfigError
+
+
+@dataclass
+class IntrinsicsConfig:
+    """Where each image's pinhole intrinsics come from (see :mod:`geofill.intrinsics`)."""
+
+    #: Explicit focal length (px of the input image) for both images; wins over everything.
+    focal_px: float | None = None
+    #: Use EXIF FocalLengthIn35mmFilm when present.
+    use_exif: bool = True
+
+
+@dataclass
+class MatchingConfig:
+    """SIFT matching between target and source (hole excluded)."""
+
+    #: SIFT keypoints per image (strongest kept); 0 = no limit.
+    max_features: int = 8000
+    #: Lowe's ratio test threshold.
+    ratio: float = 0.8
+    #: Keep only matches that are each other's nearest neighbour.
+    mutual: bool = True
+    #: Target keypoints closer than this to the hole (px at a 1280-px long side, scaled) are dropped:
+    #: their descriptors see the object being removed.
+    hole_margin_px: float = 8.0
+    #: Robust estimator for the epipolar geometry.
+    robust_method: Literal["magsac", "ransac", "lmeds"] = "magsac"
+    #: Inlier threshold (px at the working resolution).
+    ransac_threshold_px: float = 1.0
+    ransac_confidence: float = 0.9999
+    ransac_max_iters: int = 10000
+
+
+@dataclass
+class GeometryConfig:
+    """Relative pose, triangulation, depth scale/offset fit and degeneracy checks."""
+
+    #: Fewer verified matches than this is a degenerate pair (single-image fallback).
+    min_inliers: int = 20
+    #: Median triangulation angle (deg) under which the pair is treated as near-pure rotation.
+    min_median_parallax_deg: float = 0.3
+    #: Triangulated points with a reprojection error above this (px) are discarded.
+    max_reprojection_px: float = 4.0
+    #: Triangulated points with a ray angle below this (deg) carry no depth information.
+    min_point_parallax_deg: float = 0.05
+    #: Least squares or a robust (Huber, IRLS) variant for the depth scale/offset fit.
+    depth_fit: Literal["lstsq", "robust"] = "robust"
+    #: Space of the affine depth fit; ``auto`` = the depth backend's native space.
+    fit_space: Literal["auto", "depth", "inverse"] = "auto"
+
+
+@dataclass
+class DepthConfig:
+    """Which depth backend gives the source's dense depth."""
+
+    backend: Literal["sparse", "file"] = "sparse"
+    #: ``file`` backend: path of a .npy / 16-bit PNG / TIFF / EXR map the size of the source.
+    file_path: str | None = None
+    #: ``file`` backend: what the values are.
+    file_kind: Literal["depth", "inverse_depth", "disparity"] = "depth"
+    #: ``file`` backend: multiply stored values by this to get the stated kind (e.g. 0.001 for mm PNG).
+    file_scale: float = 1.0
+    #: ``file`` backend: True when the map is metric (pose translation gets its scale from it).
+    file_metric: bool = False
+    #: ``sparse`` backend: working long side (px) of the edge-aware interpolation.
+    sparse_max_side: int = 640
+
+
+@dataclass
+class RenderConfig:
+    """Rendering the source into the target view."""
+
+    #: Mesh edges with 2|d_i - d_j| / (d_i + d_j) above this are cut (paper: 4e-2).
+    edge_threshold: float = 0.04
+    #: A hole the source covers less than this fraction of falls back to single-image inpainting.
+    min_hole_coverage: float = 0.05
+
+
+@dataclass
+class InpaintConfig:
+    """Single-image inpainting for what the source cannot supply."""
+
+    method: Literal["telea", "ns"] = "telea"
+    radius_px: float = 5.0
+
+
+@dataclass
+class FillConfig:
+    """Every setting of one fill."""
+
+    intrinsics: IntrinsicsConfig = field(default_factory=IntrinsicsConfig)
+    matching: MatchingConfig = field(default_factory=MatchingConfig)
+    geometry: GeometryConfig = field(default_factory=GeometryConfig)
+    depth: DepthConfig = field(default_factory=DepthConfig)
+    render: RenderConfig = field(default_factory=RenderConfig)
+    inpaint: InpaintConfig = field(default_factory=InpaintConfig)
+    #: Geometry (matching, pose, depth, optimisation) runs with the long side capped at this (px);
+    #: rendering and compositing run at the input resolution.
+    working_max_side: int = 1280
+    #: Inputs with more pixels than this are refused (decompression-bomb guard).
+    max_pixels: int = 60_000_000
+    #: Masks covering more than this fraction of the target are refused.
+    max_mask_fraction: float = 0.9
+    #: Images with a side under this (px) are refused.
+    min_side_px: int = 64
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    def to_json(self, path: str | Path | None = None) -> str:
+        text = json.dumps(self.to_dict(), indent=2, sort_keys=False)
+        if path is not None:
+            Path(path).write_text(text + "\n")
+        return text
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> FillConfig:
+        return _build(cls, data, "config")
+
+    @classmethod
+    def from_json(cls, path: str | Path) -> FillConfig:
+        try:
+            data = json.loads(Path(path).read_text())
+        except FileNotFoundError as exc:
+            raise ConfigError(f"config file not found: {path}") from exc
+        except json.JSONDecodeError as exc:
+            raise ConfigError(f"config file {path} is not valid JSON: {exc}") from exc
+        return cls.from_dict(data)
+
+    def updated(self, dotted: dict[str, Any]) -> FillConfig:
+        """Copy with ``{"section.key": value}`` overrides applied (CLI flags, ablation variants)."""
+        data = self.to_dict()
+        for key, value in dotted.items():
+            node = data
+            *parents, leaf = key.split(".")
+            for p in parents:
+                if not isinstance(node.get(p), dict):
+                    raise ConfigError(f"unknown config section '{p}' in '{key}'")
+                node = node[p]
+            if leaf not in node:
+                raise ConfigError(f"unknown config key '{key}'")
+            node[leaf] = value
+        return FillConfig.from_dict(data)
+
+
+def _build(cls: type, data: Any, where: str):
+    if not isinstance(data, dict):
+        raise ConfigError(f"{where}: expected an object, got {type(data).__name__}")
+    hints = typing.get_type_hints(cls)
+    names = {f.name for f in dataclasses.fields(cls)}
+    unknown = set(data) - names
+    if unknown:
+        raise ConfigError(f"{where}: unknown key(s) {sorted(unknown)}; known: {sorted(names)}")
+    kwargs = {}
+    for name, value in data.items():
+        kwargs[name] = _coerce(hints[name], value, f"{where}.{name}")
+    return cls(**kwargs)
+
+
+def _coerce(tp: Any, value: Any, where: str) -> Any:
+    if dataclasses.is_dataclass(tp):
+        return _build(tp, value, where)
+    origin = typing.get_origin(tp)
+    args = typing.get_args(tp)
+    if origin is Literal:
+        if value not in args:
+            raise ConfigError(f"{where}: {value!r} is not one of {list(args)}")
+        return value
+    if origin in (typing.Union, types.UnionType):
+        if value is None and type(None) in args:
+            return None
+        for arg in args:
+            if arg is type(None):
+                continue
+            try:
+                return _coerce(arg, value, where)
+            except ConfigError:
+                continue
+        raise ConfigError(f"{where}: {value!r} does not fit {tp}")
+    if origin in (list, tuple):
+        if not isinstance(value, list | tuple):
+            raise ConfigError(f"{where}: expected a list, got {value!r}")
+        (inner,) = args[:1] or (Any,)
+        return origin(_coerce(inner, v, where) for v in value)
+    if tp is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(f"{where}: expected true/false, got {value!r}")
+        return value
+    if tp is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"{where}: expected an integer, got {value!r}")
+        return value
+    if tp is float:
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise ConfigError(f"{where}: expected a number, got {value!r}")
+        return float(value)
+    if tp is str:
+        if not isinstance(value, str):
+            raise ConfigError(f"{where}: expected a string, got {value!r}")
+        return value
+    return value

@@ -1,0 +1,58 @@
+"""Named exceptions. Each one is a user-facing problem: the CLI prints ``str(exc)`` as one line
+and exits with ``exc.exit_code`` without writing anything."""
+
+from __future__ import annotations
+
+
+class GeoFillError(Exception):
+    """Base class of every error geofill raises on purpose."""
+
+    exit_code = 1
+
+
+class InputError(GeoFillError):
+    """Something is wrong with the user's files or arrays."""
+
+    exit_code = 2
+
+
+class MissingFileError(InputError):
+    """An input path does not exist or is not a regular file."""
+
+
+class UnreadableFileError(InputError):
+    """An input file exists but cannot be opened (permissions, I/O error)."""
+
+
+class CorruptImageError(InputError):
+    """The file is not a decodable image (truncated, wrong format, garbage)."""
+
+
+class ImageTooSmallError(InputError):
+    """An image is under the minimum side length."""
+
+
+class ImageTooLargeError(InputError):
+    """An image has more pixels than the configured limit (decompression-bomb guard)."""
+
+
+class MaskSizeError(InputError):
+    """The mask's size differs from the target's."""
+
+
+class EmptyMaskError(InputError):
+    """The mask marks no hole pixel."""
+
+
+class MaskTooLargeError(InputError):
+    """The mask covers more of the target than allowed."""
+
+
+class DepthFileError(InputError):
+    """A user-supplied depth map is missing, unreadable or inconsistent with the source."""
+
+
+class ConfigError(GeoFillError):
+    """A configuration value or file is invalid."""
+
+    exit_code = 3
