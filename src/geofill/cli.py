@@ -1,0 +1,163 @@
+"""Command line: ``geofill fill``, ``geofill demo``, ``geofill eval``, ``geofill config``.
+
+Every user-facing problem is one line on stderr and a non-zero exit status, with nothing written."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from .config import FillConfig
+from .errors import ConfigError, GeoFillError
+from .progress import Progress
+
+
+def _config_from_args(args: argparse.Namespace) -> FillConfig:
+    cfg = FillConfig.from_json(args.config) if args.config else FillConfig()
+    overrides: dict[str, object] = {}
+    for item in args.set or []:
+        key, sep, raw = item.partition("=")
+        if not sep:
+            raise ConfigError(f"--set expects key=value, got {item!r}")
+        try:
+            overrides[key.strip()] = json.loads(raw)
+        except json.JSONDecodeError:
+            overrides[key.strip()] = raw  # bare strings need no quotes
+    flag_map = {
+        "depth": "depth.backend",
+        "depth_file": "depth.file_path",
+        "depth_kind": "depth.file_kind",
+        "depth_scale": "depth.file_scale",
+        "focal": "intrinsics.focal_px",
+        "working_max_side": "working_max_side",
+        "max_pixels": "max_pixels",
+    }
+    for attr, key in flag_map.items():
+        value = getattr(args, attr, None)
+        if value is not None:
+            overrides[key] = value
+    if getattr(args, "depth_metric", False):
+        overrides["depth.file_metric"] = True
+    if getattr(args, "no_exif", False):
+        overrides["intrinsics.use_exif"] = False
+    if getattr(args, "depth_file", None) and getattr(args, "depth", None) is None:
+        overrides["depth.backend"] = "file"
+    return cfg.updated(overrides) if overrides else cfg
+
+
+def _add_config_flags(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--config", help="JSON config file (see `geofill config`)")
+    p.add_argument(
+        "--set", action="append", metavar="KEY=VALUE", help="override a config key, e.g. depth.backend=file"
+    )
+    p.add_argument("--depth", choices=["sparse", "file"], help="depth backend (default: sparse)")
+    p.add_argument("--depth-file", help="depth/disparity map of the SOURCE (.npy, 16-bit PNG, TIFF, EXR)")
+    p.add_argument(
+        "--depth-kind", choices=["depth", "inverse_depth", "disparity"], help="what --depth-file holds"
+    )
+    p.add_argument(
+        "--depth-scale", type=float, help="multiply --depth-file values by this (e.g. 0.001 for mm)"
+    )
+    p.add_argument(
+        "--depth-metric", action="store_true", help="--depth-file is metric depth: fit a scale only"
+    )
+    p.add_argument("--focal", type=float, metavar="PX", help="focal length in px of the input images (both)")
+    p.add_argument("--no-exif", action="store_true", help="ignore EXIF focal lengths")
+    p.add_argument("--working-max-side", type=int, metavar="PX", help="long side for geometry (default 1280)")
+    p.add_argument("--max-pixels", type=int, help="refuse images with more pixels than this")
+
+
+def cmd_fill(args: argparse.Namespace) -> int:
+    from .debug import write_debug
+    from .io import check_output_path, read_image, read_mask, write_image_atomic
+    from .pipeline import fill
+
+    cfg = _config_from_args(args)
+    check_output_path(args.output)
+    target = read_image(args.target, max_pixels=cfg.max_pixels, min_side=cfg.min_side_px)
+    source = read_image(args.source, max_pixels=cfg.max_pixels, min_side=cfg.min_side_px)
+    mask = read_mask(args.mask, max_pixels=cfg.max_pixels)
+    prog = Progress(quiet=args.quiet)
+    result = fill(
+        target.pixels,
+        mask,
+        source.pixels,
+        cfg,
+        target_exif=target.exif,
+        source_exif=source.exif,
+        progress=prog,
+    )
+    if args.debug_dir:
+        write_debug(args.debug_dir, result, mask, cfg)
+    write_image_atomic(args.output, result.image)
+    r = result.report
+    how = "from the source" if r.status == "reference" else "by single-image inpainting"
+    prog.say(
+        f"wrote {args.output}: hole of {r.hole_pixels} px filled {how} in {sum(r.timings_s.values()):.2f} s"
+    )
+    return 0
+
+
+def cmd_config(args: argparse.Namespace) -> int:
+    print(_config_from_args(args).to_json())
+    return 0
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    from .demo import run_demo
+
+    run_demo(Path(args.out), seed=args.seed, quiet=args.quiet)
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="geofill", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("fill", help="fill the hole of TARGET with content from SOURCE")
+    p.add_argument("--target", required=True, help="image with the hole (PNG/JPEG/WebP/TIFF)")
+    p.add_argument(
+        "--mask", required=True, help="hole mask, same size as target: pixel >= 127 (or alpha) = hole"
+    )
+    p.add_argument("--source", required=True, help="another photo of the same scene")
+    p.add_argument("-o", "--output", required=True, help="output image (written atomically)")
+    p.add_argument("--debug-dir", help="write matches, depth, warped source, coverage and report.json here")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress messages")
+    _add_config_flags(p)
+    p.set_defaults(func=cmd_fill)
+
+    p = sub.add_parser("demo", help="fill a self-generated synthetic scene and report its numbers")
+    p.add_argument("--out", default="demo_out", help="output folder (default: demo_out)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("-q", "--quiet", action="store_true")
+    p.set_defaults(func=cmd_demo)
+
+    p = sub.add_parser("config", help="print the configuration (defaults + overrides) as JSON")
+    _add_config_flags(p)
+    p.set_defaults(func=cmd_config)
+
+    sub.add_parser("eval", help="evaluate methods on image pairs (see `geofill eval --help`)", add_help=False)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:1] == ["eval"]:
+        from .evaluation.cli import main_eval
+
+        return main_eval(argv[1:])
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except GeoFillError as exc:
+        print(f"geofill: error: {exc}", file=sys.stderr)
+        return exc.exit_code
+    except KeyboardInterrupt:
+        print("geofill: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,98 @@
+"""Fix a depth prediction's affine ambiguity with triangulated points (the paper's s^i, b^i).
+
+Where the fit lives: in the backend's native space by default. For inverse-depth predictions the fit
+is in inverse depth, where (i) learned networks' ambiguity is affine (an offset in depth space would
+not be), and (ii) a residual in 1/z is proportional to the pixel displacement it causes for a given
+baseline (disparity = f b / z), so least squares there weighs points by what the render sees.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.ndimage import map_coordinates
+from scipy.optimize import least_squares
+
+from ..config import GeometryConfig
+from ..triangulation import TriangulatedPoints
+from . import DepthPrediction
+
+#: Fewer valid points than this cannot fix two parameters robustly.
+MIN_POINTS_AFFINE = 6
+
+
+@dataclass
+class AlignedDepth:
+    """Dense source depth z in the units of the pose translation; NaN where invalid."""
+
+    depth: np.ndarray  # (H, W) float32
+    scale: float
+    offset: float
+    space: str  # space of the fit: "depth" or "inverse"
+    method: str  # "lstsq", "robust", "scale-only" or "identity"
+    n_points: int
+    median_rel_error: float  # median |z_fit - z_tri| / z_tri over the points
+    negative_fraction: float  # fraction of known pixels whose fitted depth was <= 0 (set invalid)
+
+
+def sample_at(values: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Bilinear samples of ``values`` at pixel positions ``uv`` (N, 2); NaN where any tap is NaN."""
+    return map_coordinates(values.astype(np.float64), [uv[:, 1], uv[:, 0]], order=1, mode="nearest")
+
+
+def fit_affine(x: np.ndarray, y: np.ndarray, robust: bool, scale_only: bool = False) -> tuple[float, float]:
+    """Least-squares ``y ~ s x + b`` (``b = 0`` when ``scale_only``); Huber IRLS when ``robust``."""
+    A = np.stack([x, np.zeros_like(x) if scale_only else np.ones_like(x)], axis=1)
+    (s, b), *_ = np.linalg.lstsq(A, y, rcond=None)
+    if robust:
+        r = y - (s * x + b)
+        mad = 1.4826 * np.median(np.abs(r - np.median(r)))
+        f_scale = max(mad, 1e-6 * max(np.abs(y).max(), 1e-12))
+        if scale_only:
+            sol = least_squares(lambda p: p[0] * x - y, [s], loss="huber", f_scale=f_scale)
+            s, b = sol.x[0], 0.0
+        else:
+            sol = least_squares(lambda p: p[0] * x + p[1] - y, [s, b], loss="huber", f_scale=f_scale)
+            s, b = sol.x
+    return float(s), float(b)
+
+
+def to_depth(values: np.ndarray, space: str, scale: float, offset: float) -> tuple[np.ndarray, float]:
+    """Apply ``s v + b`` in ``space`` and convert to z; non-positive results become NaN.
+
+    Returns (depth, fraction of finite inputs that became invalid)."""
+    a = scale * values.astype(np.float32) + np.float32(offset)
+    finite = np.isfinite(a)
+    bad = finite & (a <= 0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = a if space == "depth" else 1.0 / a
+    z = np.where(bad | ~finite, np.nan, z).astype(np.float32)
+    return z, float(bad.sum() / max(finite.sum(), 1))
+
+
+def align_depth(pred: DepthPrediction, points: TriangulatedPoints, cfg: GeometryConfig) -> AlignedDepth:
+    """Scale/offset of ``pred`` fitted to ``points`` (see module docstring for the space)."""
+    space = pred.space if cfg.fit_space == "auto" else cfg.fit_space
+    values = pred.values
+    if space != pred.space:
+        with np.errstate(divide="ignore"):
+            values = 1.0 / values  # depth <-> inverse depth
+    x = sample_at(values, points.uv_source)
+    z_tri = points.depth
+    y = z_tri if space == "depth" else 1.0 / z_tri
+    ok = np.isfinite(x) & np.isfinite(y)
+    n = int(ok.sum())
+    if pred.in_pose_units:
+        s, b, method = 1.0, 0.0, "identity"
+    elif n < MIN_POINTS_AFFINE:
+        raise ValueError(f"only {n} triangulated points fall on valid depth; cannot fit scale/offset")
+    else:
+        scale_only = pred.metric and space == "depth"
+        s, b = fit_affine(x[ok], y[ok], cfg.depth_fit == "robust", scale_only)
+        method = "scale-only" if scale_only else cfg.depth_fit
+    depth, neg = to_depth(values, space, s, b)
+    z_fit, _ = to_depth(x[ok], space, s, b)
+    rel = np.abs(z_fit - z_tri[ok]) / z_tri[ok]
+    med = float(np.nanmedian(rel)) if n else float("nan")
+    return AlignedDepth(depth, s, b, space, method, n, med, neg)

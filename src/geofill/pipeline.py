@@ -1,0 +1,323 @@
+"""The fill as composable stages: prepare -> match -> pose -> triangulate -> depth -> render -> composite.
+
+Each stage takes and returns small typed objects; :func:`fill` chains them, times them, and turns
+every degenerate case into a single-image fallback with the reason in the report (never a crash).
+Geometry runs at a working resolution (long side <= ``working_max_side``); rendering and compositing
+run at the input resolution.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import cv2
+import numpy as np
+
+from .camera import Intrinsics
+from .config import FillConfig
+from .depth import DepthContext, get_backend
+from .depth.align import AlignedDepth, align_depth
+from .inpaint import inpaint_single
+from .intrinsics import HasFocal35, resolve_intrinsics
+from .io import as_rgb_uint8, validate_pair
+from .matching import Matches, match_pair
+from .pose import PoseEstimate, estimate_pose
+from .progress import Progress
+from .render import RenderResult, render_mesh
+from .triangulation import TriangulatedPoints, triangulate
+
+#: Margin (px at a 1280-px long side) around the hole's bounding box that is rendered too: the
+#: known ring around the hole is what colour correction and seam checks compare against.
+RENDER_MARGIN_PX = 48
+
+
+@dataclass
+class WorkingViews:
+    """Both images as float32 RGB in [0, 1] at working resolution, with their intrinsics."""
+
+    target: np.ndarray
+    source: np.ndarray
+    hole: np.ndarray  # bool, working resolution
+    K_target: Intrinsics
+    K_source: Intrinsics
+    px_scale: float  # working long side / 1280: converts config pixel distances
+
+
+@dataclass
+class FillReport:
+    """What happened, for humans and for ``--debug-dir``'s report.json. Units: px, degrees, seconds."""
+
+    status: str = "reference"  # "reference" (source used) or "single_image" (fallback)
+    fallbacks: list[str] = field(default_factory=list)
+    intrinsics_target: dict[str, Any] = field(default_factory=dict)
+    intrinsics_source: dict[str, Any] = field(default_factory=dict)
+    working_size_target: tuple[int, int] = (0, 0)
+    working_size_source: tuple[int, int] = (0, 0)
+    pose_status: str = ""
+    pose_source_to_target: list[list[float]] = field(default_factory=list)
+    median_parallax_deg: float = 0.0
+    n_keypoints_target: int = 0
+    n_keypoints_source: int = 0
+    n_tentative_matches: int = 0
+    n_verified_matches: int = 0
+    n_pose_inliers: int = 0
+    n_triangulated: int = 0
+    depth_backend: str = ""
+    depth_fit: dict[str, Any] = field(default_factory=dict)
+    hole_pixels: int = 0
+    hole_coverage: float = 0.0  # fraction of hole pixels the rendered source supplies
+    timings_s: dict[str, float] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    def to_json(self) -> str:
+        return json.dumps(self.to_dict(), indent=2)
+
+
+@dataclass
+class FillArtifacts:
+    """Intermediate results (for debugging, evaluation and later stages); None where not reached."""
+
+    views: WorkingViews | None = None
+    matches: Matches | None = None
+    pose: PoseEstimate | None = None
+    points: TriangulatedPoints | None = None
+    depth: AlignedDepth | None = None
+    render: RenderResult | None = None
+    warped: np.ndarray | None = None  # HxWx3 uint8 rendered source at target resolution
+
+
+@dataclass
+class FillResult:
+    image: np.ndarray  # HxWx3 uint8; pixels outside the hole are the target's, byte for byte
+    report: FillReport
+    artifacts: FillArtifacts
+
+
+class Fallback(Exception):
+    """Internal: the source cannot help; the message is the reason shown to the user."""
+
+
+def _resize_long(image: np.ndarray, max_side: int) -> np.ndarray:
+    h, w = image.shape[:2]
+    s = max_side / max(h, w)
+    if s >= 1.0:
+        return image
+    size = (max(int(round(w * s)), 1), max(int(round(h * s)), 1))
+    return cv2.resize(image, size, interpolation=cv2.INTER_AREA)
+
+
+def prepare(
+    target: np.ndarray,
+    hole: np.ndarray,
+    source: np.ndarray,
+    cfg: FillConfig,
+    target_exif: HasFocal35 | None,
+    source_exif: HasFocal35 | None,
+) -> WorkingViews:
+    """Working-resolution float views and per-image intrinsics (resolved at input size, then resized)."""
+    K_t = resolve_intrinsics(target.shape[1], target.shape[0], cfg.intrinsics, target_exif)
+    K_s = resolve_intrinsics(source.shape[1], source.shape[0], cfg.intrinsics, source_exif)
+    t = _resize_long(target, cfg.working_max_side)
+    s = _resize_long(source, cfg.working_max_side)
+    # Area-resampled: any hole pixel of the input makes its working pixel a hole (no object leaks).
+    hole_w = _resize_long(hole.astype(np.float32), cfg.working_max_side) > 0
+    return WorkingViews(
+        t.astype(np.float32) / 255.0,
+        s.astype(np.float32) / 255.0,
+        hole_w,
+        K_t.resized(t.shape[1], t.shape[0]),
+        K_s.resized(s.shape[1], s.shape[0]),
+        max(t.shape[:2]) / 1280.0,
+    )
+
+
+def render_roi(hole: np.ndarray, margin: int) -> tuple[int, int, int, int]:
+    """Bounding box (x0, y0, x1, y1), half-open, of the hole grown by ``margin`` px, clipped."""
+    ys, xs = np.nonzero(hole)
+    h, w = hole.shape
+    return (
+        max(int(xs.min()) - margin, 0),
+        max(int(ys.min()) - margin, 0),
+        min(int(xs.max()) + margin + 1, w),
+        min(int(ys.max()) + margin + 1, h),
+    )
+
+
+def composite(
+    target: np.ndarray, hole: np.ndarray, warped: np.ndarray | None, alpha: np.ndarray | None, cfg: FillConfig
+) -> np.ndarray:
+    """Rendered source inside the hole where it exists, single-image inpainting for the rest;
+    pixels outside the hole are copied from ``target`` unchanged."""
+    out = target.copy()
+    uncovered = hole.copy()
+    if warped is not None and alpha is not None:
+        use = hole & alpha
+        out[use] = warped[use]
+        uncovered &= ~alpha
+    out = inpaint_single(out, uncovered, cfg.inpaint)
+    out[~hole] = target[~hole]
+    return out
+
+
+def fill(
+    target: np.ndarray,
+    mask: np.ndarray,
+    source: np.ndarray,
+    config: FillConfig | None = None,
+    *,
+    target_exif: HasFocal35 | None = None,
+    source_exif: HasFocal35 | None = None,
+    progress: Progress | None = None,
+) -> FillResult:
+    """Fill the hole ``mask`` (True/255 = hole) of ``target`` with content from ``source``.
+
+    Images are HxWx3 uint8 RGB (other dtypes/channels are normalised); target and source may
+    differ in size. Raises :class:`geofill.errors.InputError` subclasses for bad inputs; any
+    geometric failure falls back to single-image inpainting, with the reason in
+    ``result.report.fallbacks``.
+    """
+    cfg = config or FillConfig()
+    prog = progress or Progress(quiet=True)
+    report = FillReport()
+    art = FillArtifacts()
+    with prog.stage("check inputs"):
+        target = as_rgb_uint8(target)
+        source = as_rgb_uint8(source)
+        hole = validate_pair(
+            target,
+            mask,
+            source,
+            min_side=cfg.min_side_px,
+            max_pixels=cfg.max_pixels,
+            max_mask_fraction=cfg.max_mask_fraction,
+        )
+    report.hole_pixels = int(hole.sum())
+    try:
+        warped, alpha = _reference_fill(
+            target, hole, source, cfg, target_exif, source_exif, prog, report, art
+        )
+    except Fallback as exc:
+        report.status = "single_image"
+        report.fallbacks.append(str(exc))
+        prog.say(f"falling back to single-image inpainting: {exc}")
+        warped, alpha = None, None
+    with prog.stage("composite"):
+        image = composite(target, hole, warped, alpha, cfg)
+    report.timings_s = dict(prog.timings)
+    return FillResult(image, report, art)
+
+
+def _reference_fill(target, hole, source, cfg, target_exif, source_exif, prog, report, art):
+    """Stages that use the source; raise :class:`Fallback` when it cannot help."""
+    with prog.stage("prepare"):
+        views = prepare(target, hole, source, cfg, target_exif, source_exif)
+        art.views = views
+        report.intrinsics_target = views.K_target.resized(target.shape[1], target.shape[0]).to_json()
+        report.intrinsics_source = views.K_source.resized(source.shape[1], source.shape[0]).to_json()
+        report.working_size_target = (views.K_target.width, views.K_target.height)
+        report.working_size_source = (views.K_source.width, views.K_source.height)
+
+    with prog.stage("match") as notes:
+        matches = match_pair(views.target, views.source, views.hole, cfg.matching, views.px_scale)
+        art.matches = matches
+        report.n_keypoints_target = matches.n_keypoints_target
+        report.n_keypoints_source = matches.n_keypoints_source
+        report.n_tentative_matches = matches.n_tentative
+        report.n_verified_matches = len(matches)
+        notes.append(f"{len(matches)} verified of {matches.n_tentative} tentative matches")
+
+    with prog.stage("pose") as notes:
+        pose = estimate_pose(matches, views.K_target, views.K_source, cfg.geometry, cfg.matching)
+        art.pose = pose
+        report.pose_status = pose.status
+        report.n_pose_inliers = pose.n_inliers
+        report.median_parallax_deg = pose.median_parallax_deg
+        report.pose_source_to_target = pose.T.tolist()
+        notes.append(
+            f"{pose.status}, {pose.n_inliers} inliers, median parallax {pose.median_parallax_deg:.2f} deg"
+        )
+    if not pose.usable:
+        raise Fallback(pose.reason)
+
+    if pose.status == "rotation_only":
+        report.fallbacks.append(pose.reason)
+        prog.say(pose.reason)
+        # Any positive depth renders a pure rotation exactly (the infinite homography).
+        depth_s = np.ones((views.K_source.height, views.K_source.width), np.float32)
+        report.depth_backend = "none (rotation only)"
+    else:
+        with prog.stage("triangulate") as notes:
+            pts = triangulate(
+                matches.pts_source[pose.inliers],
+                matches.pts_target[pose.inliers],
+                views.K_source,
+                views.K_target,
+                pose.T,
+                cfg.geometry,
+            )
+            art.points = pts
+            report.n_triangulated = len(pts)
+            notes.append(f"{len(pts)} points kept of {pose.n_inliers}")
+        with prog.stage("depth") as notes:
+            depth = _dense_depth(views, pose, pts, source.shape[1::-1], cfg)
+            art.depth = depth
+            report.depth_backend = cfg.depth.backend
+            report.depth_fit = {
+                "scale": depth.scale,
+                "offset": depth.offset,
+                "space": depth.space,
+                "method": depth.method,
+                "n_points": depth.n_points,
+                "median_rel_error": depth.median_rel_error,
+                "negative_fraction": depth.negative_fraction,
+            }
+            notes.append(
+                f"{cfg.depth.backend}: scale {depth.scale:.4g}, offset {depth.offset:.4g} "
+                f"({depth.space} space, {depth.method}, {depth.n_points} points)"
+            )
+        depth_s = depth.depth
+
+    with prog.stage("render") as notes:
+        H, W = target.shape[:2]
+        K_t = views.K_target.resized(W, H)
+        K_s = views.K_source.resized(source.shape[1], source.shape[0])
+        if depth_s.shape != (K_s.height, K_s.width):
+            depth_s = cv2.resize(depth_s, (K_s.width, K_s.height), interpolation=cv2.INTER_LINEAR)
+        roi = render_roi(hole, int(RENDER_MARGIN_PX * max(H, W) / 1280))
+        rendered = render_mesh(depth_s, K_s, K_t, pose.T, cfg.render.edge_threshold, roi)
+        art.render = rendered
+        warped = rendered.sample(source)
+        art.warped = warped
+        coverage = float(rendered.alpha[hole].mean())
+        report.hole_coverage = coverage
+        notes.append(f"source covers {100 * coverage:.1f}% of the hole")
+    if coverage < cfg.render.min_hole_coverage:
+        raise Fallback(
+            f"the source covers only {100 * coverage:.1f}% of the hole "
+            f"(< {100 * cfg.render.min_hole_coverage:.0f}%): it does not see what the hole hides"
+        )
+    return warped, rendered.alpha
+
+
+def _dense_depth(views, pose, pts, source_size, cfg) -> AlignedDepth:
+    """Run the configured depth backend and align it to the triangulated points."""
+    ctx = DepthContext(
+        views.source,
+        views.target,
+        views.hole,
+        views.K_source,
+        views.K_target,
+        pose,
+        pts,
+        source_size,
+        cfg.depth,
+    )
+    try:
+        pred = get_backend(cfg.depth.backend).predict(ctx)
+        return align_depth(pred, pts, cfg.geometry)
+    except ValueError as exc:
+        raise Fallback(f"depth stage failed: {exc}") from exc
