@@ -106,7 +106,7 @@ def _resize_long(image: np.ndarray, max_side: int) -> np.ndarray:
     s = max_side / max(h, w)
     if s >= 1.0:
         return image
-    size = (max(int(round(w * s)), 1), max(int(round(h * s)), 1))
+    size = (max(round(w * s), 1), max(round(h * s), 1))
     return cv2.resize(image, size, interpolation=cv2.INTER_AREA)
 
 

@@ -134,7 +134,7 @@ def estimate_pose(
         if med_h < cfg.min_median_parallax_deg:
             reason = (
                 f"near-pure rotation (median parallax {med_h:.2f} deg < {cfg.min_median_parallax_deg} deg): "
-                "translation is unobservable; using the rotation-only homography, which is exact for any depth"
+                "translation is unobservable; using the rotation-only homography (exact for any depth)"
             )
             return PoseEstimate(make_pose(R_h, np.zeros(3)), inl_h, "rotation_only", reason, med_h)
     return PoseEstimate(

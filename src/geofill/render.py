@@ -74,10 +74,10 @@ def _raster_triangle(
     area = (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
     if abs(area) < 1e-12:
         return
-    xmin = max(int(math.ceil(min(ax, bx, cx))), x0)
-    xmax = min(int(math.floor(max(ax, bx, cx))), x1 - 1)
-    ymin = max(int(math.ceil(min(ay, by, cy))), y0)
-    ymax = min(int(math.floor(max(ay, by, cy))), y1 - 1)
+    xmin = max(math.ceil(min(ax, bx, cx)), x0)
+    xmax = min(math.floor(max(ax, bx, cx)), x1 - 1)
+    ymin = max(math.ceil(min(ay, by, cy)), y0)
+    ymax = min(math.floor(max(ay, by, cy)), y1 - 1)
     if xmin > xmax or ymin > ymax:
         return
     inv_area = 1.0 / area

@@ -27,7 +27,7 @@ class SparseDepth:
             raise ValueError(f"sparse depth needs triangulated points; got {len(pts)}")
         h, w = ctx.source.shape[:2]
         s = min(1.0, ctx.cfg.sparse_max_side / max(h, w))
-        ws, hs = max(int(round(w * s)), 8), max(int(round(h * s)), 8)
+        ws, hs = max(round(w * s), 8), max(round(h * s), 8)
         guide = cv2.resize(
             np.clip(ctx.source * 255.0 + 0.5, 0, 255).astype(np.uint8), (ws, hs), cv2.INTER_AREA
         )
