@@ -48,6 +48,10 @@ class MaskTooLargeError(InputError):
     """The mask covers more of the target than allowed."""
 
 
+class ArrayFormatError(InputError):
+    """An array given through the Python API has an unsupported shape or dtype."""
+
+
 class DepthFileError(InputError):
     """A user-supplied depth map is missing, unreadable or inconsistent with the source."""
 
@@ -56,3 +60,9 @@ class ConfigError(GeoFillError):
     """A configuration value or file is invalid."""
 
     exit_code = 3
+
+
+class OutputError(GeoFillError):
+    """An output path cannot be written (unsupported extension, missing or read-only folder, I/O error)."""
+
+    exit_code = 4
