@@ -72,6 +72,8 @@ PHOTOS = (
 TEXELS_PER_UNIT = 80.0
 #: Camera height above the floor (scene units); the floor is the plane y = CAMERA_HEIGHT.
 CAMERA_HEIGHT = 1.5
+#: The ceiling is the plane y = CEILING_Y (world y points down).
+CEILING_Y = -2.4
 #: Rays per vectorised batch (bounds the temporaries to a few MB each).
 _CHUNK = 1 << 18
 #: Light direction (towards the light) for the per-face Lambertian shade: from above-left-front.
@@ -92,11 +94,10 @@ class _Cuboid:
 
 @dataclass(frozen=True)
 class _Face:
-    """One planar textured face: side 0 is the local -axis face, side 1 the +axis face."""
+    """One planar textured face of a cuboid, perpendicular to its local ``axis``."""
 
     cuboid: _Cuboid
     axis: int
-    side: int
     pyramid: tuple[np.ndarray, ...]
 
 
@@ -130,7 +131,8 @@ class Scene:
     def __init__(self, room: _Cuboid, boxes: list[_Cuboid], faces: list[_Face], center: np.ndarray):
         self.room = room
         self.boxes = boxes
-        #: Faces 0-5 are the room's, then six per box in ``boxes`` order (id = 6 * cuboid + 2 * axis + side).
+        #: Faces 0-5 are the room's, then six per box in ``boxes`` order: id = 6 * cuboid + 2 * axis
+        #: + side, side 1 being the face on the local +axis.
         self.faces = faces
         #: The point both default cameras look at (world coordinates, scene units).
         self.center = center
@@ -180,16 +182,17 @@ class Scene:
         rot, origin = cam_to_world[:3, :3], cam_to_world[:3, 3]
         if not self.contains_camera(origin):
             raise ValueError(f"camera centre {origin} is outside the room or inside a box")
-        # Camera-frame directions K^-1 [x, y, 1] have z exactly 1, so the hit parameter is the z-depth.
-        rays_cam = _times(np.concatenate([pixels, np.ones((len(pixels), 1))], axis=1), np.linalg.inv(K).T)
+        # World directions R K^-1 [x, y, 1]: their camera z is 1, so the hit parameter is the z-depth.
+        to_world = (rot @ np.linalg.inv(K)).T
         focal = float(np.sqrt(K[0, 0] * K[1, 1]))
         bounds = [_screen_bounds(box, K, cam_to_world) for box in self.boxes]
         depth = np.empty(len(pixels))
         colour = np.empty((len(pixels), 3), np.float32) if shade else None
         for start in range(0, len(pixels), _CHUNK):
             chunk = slice(start, start + _CHUNK)
-            dirs = _times(rays_cam[chunk], rot.T)
-            t, face = self._intersect(origin, dirs, pixels[chunk], bounds)
+            pix = pixels[chunk]
+            dirs = _times(np.concatenate([pix, np.ones((len(pix), 1))], axis=1), to_world)
+            t, face = self._intersect(origin, dirs, pix, bounds)
             depth[chunk] = t
             if shade:
                 colour[chunk] = self._shade(origin, dirs, t, face, focal)
@@ -398,14 +401,14 @@ def _faces(rng: np.random.Generator, cuboid: _Cuboid, inside: bool) -> list[_Fac
         for side in (0, 1):
             normal = cuboid.rotation[:, axis] * (1.0 if side else -1.0) * (-1.0 if inside else 1.0)
             shade = 0.5 + 0.5 * max(0.0, float(normal @ _LIGHT))
-            faces.append(_Face(cuboid, axis, side, _pyramid(_texture(rng, width, height, shade))))
+            faces.append(_Face(cuboid, axis, _pyramid(_texture(rng, width, height, shade))))
     return faces
 
 
 def _place_boxes(rng: np.random.Generator, back_z: float, half_width: float) -> list[_Cuboid]:
     """Boxes standing on the floor, thin panels and maybe a pillar, inside the default view, not
     overlapping (footprint circles) and well away from the cameras."""
-    floor, ceiling = CAMERA_HEIGHT, -2.4
+    floor, ceiling = CAMERA_HEIGHT, CEILING_Y
     specs = []  # (half extents, bottom height above the floor)
     for _ in range(rng.integers(4, 7)):
         specs.append((rng.uniform([0.3, 0.25, 0.25], [0.75, 0.8, 0.6]), 0.0))
@@ -437,11 +440,11 @@ def make_scene(seed: int = 0) -> Scene:
     rng = np.random.default_rng(seed)
     back_z = rng.uniform(8.5, 10.0)
     half_width = rng.uniform(4.0, 5.5)
-    ceiling, front = -2.4, -3.0
+    front = -3.0
     room = _Cuboid(
-        np.array([0.0, (CAMERA_HEIGHT + ceiling) / 2, (back_z + front) / 2]),
+        np.array([0.0, (CAMERA_HEIGHT + CEILING_Y) / 2, (back_z + front) / 2]),
         np.eye(3),
-        np.array([half_width, (CAMERA_HEIGHT - ceiling) / 2, (back_z - front) / 2]),
+        np.array([half_width, (CAMERA_HEIGHT - CEILING_Y) / 2, (back_z - front) / 2]),
     )
     boxes = _place_boxes(rng, back_z, half_width)
     faces = _faces(rng, room, inside=True)
