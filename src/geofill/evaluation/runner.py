@@ -14,6 +14,7 @@ Files written to ``out_dir`` by :func:`run_eval`: ``results.csv`` (one row per p
 from __future__ import annotations
 
 import csv
+import importlib.util
 import json
 import math
 import statistics
@@ -437,7 +438,12 @@ def sweep(
     table = sweep_table(rows, list(methods), widths_720p)
     _write_csv(out / "sweep.csv", list(table[0]) if table else [], table)
     (out / "sweep.md").write_text(_sweep_markdown(table, lpips.description))
-    plot_sweep(out / "sweep.png", rows, list(methods), widths_720p)
+    if importlib.util.find_spec("matplotlib") is None:
+        print(
+            "sweep.png not drawn: matplotlib is not installed (pip install 'geofill[eval]')", file=sys.stderr
+        )
+    else:
+        plot_sweep(out / "sweep.png", rows, list(methods), widths_720p)
     return rows
 
 
