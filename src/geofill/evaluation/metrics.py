@@ -1,0 +1,175 @@
+"""Image-quality metrics of the evaluation: PSNR, SSIM (whole image and hole only) and LPIPS from a
+user-supplied local model file.
+
+Whole-image scores follow the inpainting papers' convention (the filled image against the original
+target, every pixel counted, data range 255). Hole-only scores count the hole's pixels only, which
+is what separates methods: outside the hole every method returns the target unchanged.
+
+SSIM uses the reference settings of Wang et al. (2004): 11x11 Gaussian window with sigma 1.5,
+population statistics, K1 = 0.01, K2 = 0.03 (scikit-image's ``gaussian_weights=True,
+use_sample_covariance=False``), computed per RGB channel and averaged.
+
+LPIPS (Zhang et al., 2018) needs pretrained network weights, which geofill does not ship and cannot
+download. Point ``GEOFILL_LPIPS_MODEL`` (or ``--lpips-model``) at a local LPIPS model file: ONNX
+(``.onnx``), a ``torch.export`` program (``.pt2``) or TorchScript (``.pt``/``.pth``/``.ts``,
+deprecated by PyTorch but still loaded). It must take two 1x3xHxW float32 RGB images in [-1, 1]
+(the ``lpips`` package's convention with ``normalize=False``) and return the distance (its mean is
+taken). One way to make such a file on a machine with the ``lpips`` package (not tried here, where
+no weights exist; export with two *different* example images and dynamic H, W)::
+
+    import lpips, torch
+    net = lpips.LPIPS(net="alex").eval()
+    x, y = torch.rand(2, 1, 3, 256, 256) * 2 - 1
+    H, W = torch.export.Dim("H", min=32, max=4096), torch.export.Dim("W", min=32, max=4096)
+    program = torch.export.export(net, (x, y), dynamic_shapes=({2: H, 3: W}, {2: H, 3: W}))
+    torch.export.save(program, "lpips_alex.pt2")
+
+Without a model, LPIPS is reported as ``unavailable: <reason>``, never silently left out.
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from skimage.metrics import peak_signal_noise_ratio, structural_similarity
+
+#: Data range of uint8 images.
+DATA_RANGE = 255.0
+#: Environment variable naming the local LPIPS model file.
+LPIPS_ENV = "GEOFILL_LPIPS_MODEL"
+_TORCHSCRIPT_SUFFIXES = (".pt", ".pth", ".ts")
+_EXPORT_SUFFIX = ".pt2"
+_SSIM_SETTINGS = {"gaussian_weights": True, "sigma": 1.5, "use_sample_covariance": False}
+
+
+def _check(a: np.ndarray, b: np.ndarray, region: np.ndarray | None) -> None:
+    if a.shape != b.shape:
+        raise ValueError(f"images differ in shape: {a.shape} vs {b.shape}")
+    if a.dtype != np.uint8 or b.dtype != np.uint8:
+        raise ValueError(f"metrics expect uint8 images, got {a.dtype} and {b.dtype}")
+    if region is not None:
+        if region.shape != a.shape[:2] or region.dtype != bool:
+            raise ValueError(
+                f"region must be a bool mask of shape {a.shape[:2]}, got {region.dtype} {region.shape}"
+            )
+        if not region.any():
+            raise ValueError("region is empty")
+
+
+def psnr(a: np.ndarray, b: np.ndarray, region: np.ndarray | None = None) -> float:
+    """PSNR (dB) of uint8 images ``a`` vs. ``b`` over all pixels and channels, or over the pixels
+    where the HxW bool ``region`` is True. ``inf`` when they are identical there."""
+    _check(a, b, region)
+    if region is not None:
+        a, b = a[region], b[region]
+    if np.array_equal(a, b):
+        return float("inf")
+    return float(peak_signal_noise_ratio(a, b, data_range=DATA_RANGE))
+
+
+def ssim(a: np.ndarray, b: np.ndarray, region: np.ndarray | None = None) -> float:
+    """SSIM of uint8 images (HxWx3 or HxW). Whole image: scikit-image's mean SSIM (the papers'
+    convention); with an HxW bool ``region``: the mean of the SSIM map over the region's pixels
+    (each pixel's SSIM still sees its 11x11 neighbourhood, hole or not)."""
+    _check(a, b, region)
+    channel_axis = -1 if a.ndim == 3 else None
+    mean_ssim, ssim_map = structural_similarity(
+        a, b, data_range=DATA_RANGE, channel_axis=channel_axis, full=True, **_SSIM_SETTINGS
+    )
+    if region is None:
+        return float(mean_ssim)
+    return float(ssim_map[region].mean())
+
+
+class LpipsUnavailable(RuntimeError):
+    """No usable LPIPS model; the message is the reason shown in the outputs."""
+
+
+@dataclass
+class LpipsScorer:
+    """LPIPS distance from a local TorchScript or ONNX model (lower is better)."""
+
+    path: Path
+    backend: str  # "onnx" | "torch.export" | "torchscript"
+    _model: object
+
+    def __call__(self, a: np.ndarray, b: np.ndarray) -> float:
+        """LPIPS distance between two HxWx3 uint8 RGB images of the same size."""
+        _check(a, b, None)
+        if a.ndim != 3 or a.shape[2] != 3:
+            raise ValueError(f"LPIPS needs HxWx3 RGB images, got shape {a.shape}")
+        x, y = _to_lpips_input(a), _to_lpips_input(b)
+        if self.backend == "onnx":
+            names = [i.name for i in self._model.get_inputs()]
+            out = self._model.run(None, {names[0]: x, names[1]: y})[0]
+            return float(np.mean(out))
+        import torch
+
+        with torch.inference_mode():
+            out = self._model(torch.from_numpy(x), torch.from_numpy(y))
+        return float(out.float().mean())
+
+
+def _to_lpips_input(image: np.ndarray) -> np.ndarray:
+    """HxWx3 uint8 -> 1x3xHxW float32 in [-1, 1]."""
+    return np.ascontiguousarray((image.astype(np.float32) / 127.5 - 1.0).transpose(2, 0, 1)[None])
+
+
+def lpips_model_path(path: str | os.PathLike | None = None) -> Path | None:
+    """The LPIPS model file to use: ``path`` if given, else ``$GEOFILL_LPIPS_MODEL``, else None."""
+    chosen = path if path is not None else os.environ.get(LPIPS_ENV) or None
+    return Path(chosen) if chosen is not None else None
+
+
+def load_lpips(path: str | os.PathLike | None = None) -> LpipsScorer:
+    """Load the LPIPS model (see :func:`lpips_model_path`); :class:`LpipsUnavailable` with the reason
+    when there is none or it cannot be loaded."""
+    model_path = lpips_model_path(path)
+    if model_path is None:
+        raise LpipsUnavailable(
+            f"no LPIPS model (set {LPIPS_ENV} or --lpips-model to a local LPIPS model file, "
+            ".onnx/.pt2/.pt; geofill ships no weights)"
+        )
+    if not model_path.is_file():
+        raise LpipsUnavailable(f"LPIPS model file not found: {model_path}")
+    suffix = model_path.suffix.lower()
+    try:
+        if suffix == ".onnx":
+            import onnxruntime
+
+            session = onnxruntime.InferenceSession(str(model_path), providers=["CPUExecutionProvider"])
+            if len(session.get_inputs()) != 2:
+                raise LpipsUnavailable(f"LPIPS ONNX model {model_path} must take 2 inputs")
+            return LpipsScorer(model_path, "onnx", session)
+        if suffix == _EXPORT_SUFFIX:
+            import torch
+
+            return LpipsScorer(model_path, "torch.export", torch.export.load(str(model_path)).module())
+        if suffix in _TORCHSCRIPT_SUFFIXES:
+            import torch
+
+            with warnings.catch_warnings():
+                # The user chose the format; PyTorch's deprecation notice is not theirs to act on here.
+                warnings.simplefilter("ignore", DeprecationWarning)
+                model = torch.jit.load(str(model_path), map_location="cpu")
+            return LpipsScorer(model_path, "torchscript", model)
+    except LpipsUnavailable:
+        raise
+    except Exception as exc:  # any loader failure is a reason to report, not a crash
+        raise LpipsUnavailable(f"cannot load LPIPS model {model_path}: {type(exc).__name__}: {exc}") from exc
+    raise LpipsUnavailable(
+        f"LPIPS model {model_path}: unknown format '{suffix}' (want .onnx, .pt2 or .pt/.pth/.ts)"
+    )
+
+
+def lpips_available(path: str | os.PathLike | None = None) -> tuple[bool, str]:
+    """(True, description) when an LPIPS model loads, else (False, reason)."""
+    try:
+        scorer = load_lpips(path)
+    except LpipsUnavailable as exc:
+        return False, str(exc)
+    return True, f"{scorer.backend} model {scorer.path}"
