@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import csv
 import hashlib
-import importlib.util
 import json
 import math
 import warnings
@@ -552,20 +551,10 @@ def test_load_pairs_rejects_duplicates_and_empty_folders(tmp_path):
     assert np.array_equal(loaded.target, p.target) and loaded.meta == p.meta
 
 
-HAS_SYNTHETIC = importlib.util.find_spec("geofill.synthetic") is not None
-
-
-@pytest.mark.skipif(not HAS_SYNTHETIC, reason="geofill.synthetic is not in this checkout yet")
 def test_synthetic_pairs_load():
     pairs = load_pairs(["synthetic:2"])
     assert [p.id for p in pairs] == ["synthetic_000", "synthetic_001"]
     assert pairs[0].target.dtype == np.uint8 and pairs[0].target.shape == pairs[0].source.shape
-
-
-@pytest.mark.skipif(HAS_SYNTHETIC, reason="geofill.synthetic exists: covered by test_synthetic_pairs_load")
-def test_synthetic_pairs_need_the_module():
-    with pytest.raises(InputError, match=r"geofill\.synthetic"):
-        load_pairs(["synthetic:2"])
 
 
 @pytest.mark.skipif(not REAL_PAIRS.is_dir(), reason=f"real pairs not found at {REAL_PAIRS}")

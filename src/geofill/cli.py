@@ -5,26 +5,17 @@ Every user-facing problem is one line on stderr and a non-zero exit status, with
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
-from .config import FillConfig
-from .errors import ConfigError, GeoFillError
+from .config import FillConfig, parse_overrides
+from .errors import GeoFillError
 from .progress import Progress
 
 
 def _config_from_args(args: argparse.Namespace) -> FillConfig:
     cfg = FillConfig.from_json(args.config) if args.config else FillConfig()
-    overrides: dict[str, object] = {}
-    for item in args.set or []:
-        key, sep, raw = item.partition("=")
-        if not sep:
-            raise ConfigError(f"--set expects key=value, got {item!r}")
-        try:
-            overrides[key.strip()] = json.loads(raw)
-        except json.JSONDecodeError:
-            overrides[key.strip()] = raw  # bare strings need no quotes
+    overrides = parse_overrides(args.set)
     flag_map = {
         "depth": "depth.backend",
         "depth_file": "depth.file_path",

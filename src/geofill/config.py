@@ -215,3 +215,18 @@ def _coerce(tp: Any, value: Any, where: str) -> Any:
             raise ConfigError(f"{where}: expected a string, got {value!r}")
         return value
     return value
+
+
+def parse_overrides(items: list[str] | None) -> dict[str, Any]:
+    """``["section.key=value", ...]`` (CLI ``--set``) -> overrides for :meth:`FillConfig.updated`.
+    Values are JSON (numbers, true/false, null, quoted strings); bare words are strings."""
+    overrides: dict[str, Any] = {}
+    for item in items or []:
+        key, sep, raw = item.partition("=")
+        if not sep or not key.strip():
+            raise ConfigError(f"--set expects key=value, got {item!r}")
+        try:
+            overrides[key.strip()] = json.loads(raw)
+        except json.JSONDecodeError:
+            overrides[key.strip()] = raw
+    return overrides

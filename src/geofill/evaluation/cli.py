@@ -7,9 +7,18 @@ from __future__ import annotations
 import argparse
 import sys
 
+from ..config import FillConfig, parse_overrides
 from ..errors import GeoFillError
 from .masks import DEFAULT_AREA_RANGE, DEFAULT_STROKE_WIDTH_720P
-from .runner import METHODS, load_pairs, resolve_methods, run_eval, sweep
+from .runner import (
+    DEFAULT_METHODS,
+    METHODS,
+    load_pairs,
+    register_geofill_methods,
+    resolve_methods,
+    run_eval,
+    sweep,
+)
 
 
 def _area_range(text: str) -> tuple[float, float]:
@@ -38,7 +47,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--methods",
         metavar="A,B",
-        help=f"comma-separated methods (default: all registered; now {', '.join(METHODS)})",
+        help=f"comma-separated methods (default: {','.join(DEFAULT_METHODS)}; "
+        f"registered: {', '.join(METHODS)})",
     )
     parser.add_argument(
         "--stroke-width",
@@ -58,6 +68,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         choices=["hole-size"],
         help="hole-size study: the same holes at mean brush widths 90..210 px (720p)",
     )
+    parser.add_argument("--config", metavar="FILE", help="base FillConfig JSON for the geofill methods")
+    parser.add_argument(
+        "--set", action="append", metavar="KEY=VALUE", help="override a geofill config key (repeatable)"
+    )
     parser.add_argument("--by", metavar="FIELD", help="group the summary by a meta.json field (e.g. kind)")
     parser.add_argument("--limit", type=int, metavar="N", help="first N pairs only (by id)")
     parser.add_argument(
@@ -76,6 +90,8 @@ def run(args: argparse.Namespace) -> int:
         )
         return 2
     try:
+        base = FillConfig.from_json(args.config) if args.config else FillConfig()
+        register_geofill_methods(base.updated(parse_overrides(args.set)))
         methods = resolve_methods([m.strip() for m in args.methods.split(",")] if args.methods else None)
         pairs = load_pairs(args.pairs)
         if args.limit is not None:

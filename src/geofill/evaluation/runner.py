@@ -29,7 +29,8 @@ import cv2
 import numpy as np
 
 from ..config import FillConfig
-from ..errors import ConfigError, CorruptImageError, ImageTooSmallError, InputError, MissingFileError
+from ..errors import ConfigError, InputError, MissingFileError
+from ..io import read_image
 from .baselines import homography_fill_detailed, opencv_inpaint
 from .masks import (
     DEFAULT_AREA_RANGE,
@@ -90,11 +91,46 @@ def _homography_method(target: np.ndarray, hole: np.ndarray, source: np.ndarray)
 register_method("opencv_inpaint", _opencv_method)
 register_method("homography", _homography_method)
 
+#: geofill variants selectable by name: config overrides on top of the run's base config
+#: (``geofill eval --config/--set``). The paper's ablations are entries here.
+GEOFILL_VARIANTS: dict[str, dict[str, Any]] = {"geofill": {}}
+#: What ``--methods`` defaults to: the baselines and geofill as configured (variants by name).
+DEFAULT_METHODS = (*BASELINES, "geofill")
+
+
+def geofill_method(cfg: FillConfig) -> Method:
+    """The full pipeline with ``cfg`` as an evaluation method."""
+    from ..pipeline import fill
+
+    def run(target: np.ndarray, hole: np.ndarray, source: np.ndarray) -> MethodOutput:
+        res = fill(target, hole, source, cfg)
+        r = res.report
+        info = {
+            "status": r.status,
+            "fallbacks": r.fallbacks,
+            "pose_status": r.pose_status,
+            "n_pose_inliers": r.n_pose_inliers,
+            "hole_coverage": round(r.hole_coverage, 4),
+        }
+        return MethodOutput(res.image, dict(r.timings_s), info)
+
+    return run
+
+
+def register_geofill_methods(base: FillConfig | None = None) -> None:
+    """(Re-)register every geofill variant on top of ``base`` (default config when None)."""
+    base = base or FillConfig()
+    for name, overrides in GEOFILL_VARIANTS.items():
+        register_method(name, geofill_method(base.updated(overrides)), replace=True)
+
+
+register_geofill_methods()
+
 
 def resolve_methods(names: Sequence[str] | None) -> dict[str, Method]:
-    """Registered methods by name, in the given order (None: all registered)."""
+    """Registered methods by name, in the given order (None: :data:`DEFAULT_METHODS`)."""
     if names is None:
-        return dict(METHODS)
+        names = DEFAULT_METHODS
     unknown = [n for n in names if n not in METHODS]
     if unknown:
         raise ConfigError(f"unknown method(s) {unknown}; registered: {sorted(METHODS)}")
@@ -121,13 +157,6 @@ SYNTHETIC_PREFIX = "synthetic:"
 _MIN_SIDE_PX = FillConfig().min_side_px
 
 
-def _read_rgb(path: Path) -> np.ndarray:
-    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if image is None:
-        raise CorruptImageError(f"cannot decode image {path}")
-    return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
-
-
 def _find_image(folder: Path, stem: str) -> Path | None:
     for suffix in _IMAGE_SUFFIXES:
         if (folder / f"{stem}{suffix}").is_file():
@@ -143,11 +172,7 @@ def load_pair(folder: str | Path) -> Pair:
         path = _find_image(folder, stem)
         if path is None:
             raise MissingFileError(f"pair folder {folder} has no {stem}.png/.jpg")
-        images[stem] = _read_rgb(path)
-        if min(images[stem].shape[:2]) < _MIN_SIDE_PX:
-            raise ImageTooSmallError(
-                f"{path}: {images[stem].shape[1]}x{images[stem].shape[0]} is under {_MIN_SIDE_PX} px"
-            )
+        images[stem] = read_image(path, min_side=_MIN_SIDE_PX).pixels
     meta_path = folder / "meta.json"
     try:
         meta = json.loads(meta_path.read_text()) if meta_path.is_file() else {}
@@ -158,10 +183,8 @@ def load_pair(folder: str | Path) -> Pair:
 
 def synthetic_pairs(n: int) -> list[Pair]:
     """``n`` synthetic pairs from :func:`geofill.synthetic.make_pair` (seeds 0..n-1)."""
-    try:
-        from ..synthetic import make_pair
-    except ModuleNotFoundError as exc:
-        raise InputError(f"'{SYNTHETIC_PREFIX}{n}' needs geofill.synthetic, which is not installed") from exc
+    from ..synthetic import make_pair
+
     pairs = []
     for i in range(n):
         sp = make_pair(seed=i)
