@@ -62,7 +62,7 @@ def _add_config_flags(p: argparse.ArgumentParser) -> None:
 
 def cmd_fill(args: argparse.Namespace) -> int:
     from .debug import write_debug
-    from .io import check_output_path, read_image, read_mask, write_image_atomic
+    from .io import check_output_path, read_image, read_mask, validate_pair, write_image_atomic
     from .pipeline import fill
 
     cfg = _config_from_args(args)
@@ -70,6 +70,16 @@ def cmd_fill(args: argparse.Namespace) -> int:
     target = read_image(args.target, max_pixels=cfg.max_pixels, min_side=cfg.min_side_px)
     source = read_image(args.source, max_pixels=cfg.max_pixels, min_side=cfg.min_side_px)
     mask = read_mask(args.mask, max_pixels=cfg.max_pixels)
+    # Validated here too so that errors name the files rather than "target"/"mask".
+    validate_pair(
+        target.pixels,
+        mask,
+        source.pixels,
+        min_side=cfg.min_side_px,
+        max_pixels=cfg.max_pixels,
+        max_mask_fraction=cfg.max_mask_fraction,
+        names=(args.target, args.mask, args.source),
+    )
     prog = Progress(quiet=args.quiet)
     result = fill(
         target.pixels,

@@ -26,9 +26,7 @@ class Progress:
         """Context that times ``name``; append strings to the yielded list to print them with it."""
         notes: list[str] = []
         t0 = time.perf_counter()
-        try:
-            yield notes
-        finally:
-            dt = time.perf_counter() - t0
-            self.timings[name] = self.timings.get(name, 0.0) + dt
-            self.say(f"{name:<14s} {dt:6.2f} s" + (f"  {'; '.join(notes)}" if notes else ""))
+        yield notes  # a stage that raises is reported by whoever handles the error, not here
+        dt = time.perf_counter() - t0
+        self.timings[name] = self.timings.get(name, 0.0) + dt
+        self.say(f"{name:<14s} {dt:6.2f} s" + (f"  {'; '.join(notes)}" if notes else ""))

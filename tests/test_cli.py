@@ -1,0 +1,142 @@
+"""The command line: a successful fill with debug output, and every bad input refused with a
+one-line message, a non-zero exit status and nothing written."""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from geofill.cli import main
+from geofill.config import FillConfig
+from geofill.synthetic import make_pair
+
+
+def _write_rgb(path, rgb):
+    assert cv2.imwrite(str(path), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    d = tmp_path_factory.mktemp("inputs")
+    p = make_pair(seed=3, width=320, height=240)
+    _write_rgb(d / "target.png", p.target)
+    _write_rgb(d / "source.png", p.source)
+    cv2.imwrite(str(d / "mask.png"), p.hole.astype(np.uint8) * 255)
+    return d, p
+
+
+def run(argv, capsys):
+    code = main([str(a) for a in argv])
+    err = capsys.readouterr().err.strip().splitlines()
+    return code, err
+
+
+def fill_args(d, out, **over):
+    paths = {"target": d / "target.png", "mask": d / "mask.png", "source": d / "source.png"} | over
+    return ["fill", "--target", paths["target"], "--mask", paths["mask"], "--source", paths["source"], "-o", out]
+
+
+def test_fill_writes_output_and_debug(files, tmp_path, capsys):
+    d, p = files
+    out, dbg = tmp_path / "out.png", tmp_path / "dbg"
+    code, err = run([*fill_args(d, out), "--debug-dir", dbg], capsys)
+    assert code == 0
+    assert any(line.startswith("geofill: match") for line in err)  # progress per stage
+    result = cv2.cvtColor(cv2.imread(str(out)), cv2.COLOR_BGR2RGB)
+    assert np.array_equal(result[~p.hole], p.target[~p.hole])
+    assert not np.array_equal(result[p.hole], np.zeros_like(result[p.hole]))
+    names = {f.name for f in dbg.iterdir()}
+    assert {"matches.jpg", "depth.png", "depth.npy", "warped.png", "coverage.png", "report.json"} <= names
+    report = json.loads((dbg / "report.json").read_text())
+    assert report["status"] == "reference"
+    assert report["n_pose_inliers"] > 50 and len(report["pose_source_to_target"]) == 4
+    assert report["intrinsics_target"]["fx_px"] == pytest.approx(750 * 320 / 1280)
+    assert set(report["timings_s"]) >= {"match", "pose", "depth", "render"}
+    assert report["config"]["render"]["edge_threshold"] == 0.04
+
+
+def test_quiet_prints_nothing(files, tmp_path, capsys):
+    d, _ = files
+    code, err = run([*fill_args(d, tmp_path / "o.jpg"), "--quiet"], capsys)
+    assert code == 0 and err == []
+
+
+def _corrupt(path):
+    path.write_bytes(b"\x89PNG\r\n\x1a\n" + b"garbage" * 20)
+
+
+@pytest.mark.parametrize(
+    ("case", "expected_code", "needle"),
+    [
+        ("missing", 2, "not found"),
+        ("corrupt", 2, "corrupt"),
+        ("mask_size", 2, "mask is 100x100 but the target"),
+        ("empty_mask", 2, "no hole pixel"),
+        ("full_mask", 2, "%"),
+        ("tiny", 2, "64"),
+        ("too_many_pixels", 2, "pixels"),
+        ("bad_extension", 4, ".gif"),
+        ("bad_config_key", 3, "depth.nope"),
+    ],
+)
+def test_bad_input_is_one_line_error_and_writes_nothing(files, tmp_path, capsys, case, expected_code, needle):
+    d, p = files
+    out, dbg = tmp_path / "out.png", tmp_path / "dbg"
+    extra: list = ["--debug-dir", dbg]
+    over = {}
+    if case == "missing":
+        over["source"] = tmp_path / "nope.png"
+    elif case == "corrupt":
+        _corrupt(tmp_path / "bad.png")
+        over["target"] = tmp_path / "bad.png"
+    elif case == "mask_size":
+        cv2.imwrite(str(tmp_path / "m.png"), np.full((100, 100), 255, np.uint8))
+        over["mask"] = tmp_path / "m.png"
+    elif case == "empty_mask":
+        cv2.imwrite(str(tmp_path / "m.png"), np.zeros(p.hole.shape, np.uint8))
+        over["mask"] = tmp_path / "m.png"
+    elif case == "full_mask":
+        cv2.imwrite(str(tmp_path / "m.png"), np.full(p.hole.shape, 255, np.uint8))
+        over["mask"] = tmp_path / "m.png"
+    elif case == "tiny":
+        _write_rgb(tmp_path / "s.png", p.source[:40, :40])
+        over["source"] = tmp_path / "s.png"
+    elif case == "too_many_pixels":
+        extra += ["--max-pixels", "50000"]
+    elif case == "bad_extension":
+        out = tmp_path / "out.gif"
+    elif case == "bad_config_key":
+        extra += ["--set", "depth.nope=1"]
+    code, err = run([*fill_args(d, out, **over), *extra], capsys)
+    assert code == expected_code
+    assert len(err) == 1 and err[0].startswith("geofill: error:")
+    assert needle in err[0]
+    assert not out.exists() and not dbg.exists()
+    assert sorted(f.name for f in tmp_path.iterdir()) == sorted(
+        f.name for f in tmp_path.iterdir() if f.suffix != ".tmp" and not f.name.startswith(".")
+    )
+
+
+def test_config_dump_roundtrip_and_overrides(tmp_path, capsys):
+    assert main(["config", "--set", "matching.ratio=0.7", "--depth", "file"]) == 0
+    text = capsys.readouterr().out
+    cfg = FillConfig.from_dict(json.loads(text))
+    assert cfg.matching.ratio == 0.7 and cfg.depth.backend == "file"
+    path = tmp_path / "cfg.json"
+    path.write_text(text)
+    assert main(["config", "--config", str(path)]) == 0
+    assert FillConfig.from_dict(json.loads(capsys.readouterr().out)) == cfg
+
+
+def test_demo_writes_side_by_side_and_numbers(tmp_path, capsys):
+    assert main(["demo", "--out", str(tmp_path / "demo"), "--quiet"]) == 0
+    numbers = json.loads((tmp_path / "demo" / "numbers.json").read_text())
+    g, s = numbers["geofill"], numbers["single_image_inpainting"]
+    assert g["status"] == "reference"
+    assert g["rotation_error_deg"] < 0.5 and g["translation_direction_error_deg"] < 2.0
+    assert g["psnr_hole_db"] > s["psnr_hole_db"] + 3.0
+    img = cv2.imread(str(tmp_path / "demo" / "side_by_side.png"))
+    assert img.shape == (480, 5 * 640, 3)
