@@ -36,7 +36,7 @@ def run(argv, capsys):
 
 def fill_args(d, out, **over):
     paths = {"target": d / "target.png", "mask": d / "mask.png", "source": d / "source.png"} | over
-    return ["fill", "--target", paths["target"], "--mask", paths["mask"], "--source", paths["source"], "-o", out]
+    return ["fill", "-o", out, *(x for k in ("target", "mask", "source") for x in (f"--{k}", paths[k]))]
 
 
 def test_fill_writes_output_and_debug(files, tmp_path, capsys):
