@@ -30,8 +30,9 @@ class IntrinsicsConfig:
 class MatchingConfig:
     """SIFT matching between target and source (hole excluded)."""
 
-    #: SIFT keypoints per image (strongest kept); 0 = no limit.
-    max_features: int = 8000
+    #: SIFT keypoints per image (strongest kept); 0 = no limit. 4000 gave the same pose accuracy
+    #: as 8000 on the GT-pose pairs (median 0.18 deg / 0.95 deg) at half the matching time.
+    max_features: int = 4000
     #: Lowe's ratio test threshold.
     ratio: float = 0.8
     #: Keep only matches that are each other's nearest neighbour.
