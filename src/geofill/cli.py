@@ -22,6 +22,8 @@ def _config_from_args(args: argparse.Namespace) -> FillConfig:
         "depth_kind": "depth.file_kind",
         "depth_scale": "depth.file_scale",
         "focal": "intrinsics.focal_px",
+        "target_intrinsics": "intrinsics.target",
+        "source_intrinsics": "intrinsics.source",
         "working_max_side": "working_max_side",
         "max_pixels": "max_pixels",
     }
@@ -36,6 +38,16 @@ def _config_from_args(args: argparse.Namespace) -> FillConfig:
     if getattr(args, "depth_file", None) and getattr(args, "depth", None) is None:
         overrides["depth.backend"] = "file"
     return cfg.updated(overrides) if overrides else cfg
+
+
+def _floats4(text: str) -> list[float]:
+    try:
+        values = [float(v) for v in text.split(",")]
+    except ValueError:
+        values = []
+    if len(values) != 4:
+        raise argparse.ArgumentTypeError(f"expected FX,FY,CX,CY (4 numbers), got {text!r}")
+    return values
 
 
 def _add_config_flags(p: argparse.ArgumentParser) -> None:
@@ -55,6 +67,12 @@ def _add_config_flags(p: argparse.ArgumentParser) -> None:
         "--depth-metric", action="store_true", help="--depth-file is metric depth: fit a scale only"
     )
     p.add_argument("--focal", type=float, metavar="PX", help="focal length in px of the input images (both)")
+    p.add_argument(
+        "--target-intrinsics", type=_floats4, metavar="FX,FY,CX,CY", help="calibrated target camera (px)"
+    )
+    p.add_argument(
+        "--source-intrinsics", type=_floats4, metavar="FX,FY,CX,CY", help="calibrated source camera (px)"
+    )
     p.add_argument("--no-exif", action="store_true", help="ignore EXIF focal lengths")
     p.add_argument("--working-max-side", type=int, metavar="PX", help="long side for geometry (default 1280)")
     p.add_argument("--max-pixels", type=int, help="refuse images with more pixels than this")

@@ -20,8 +20,12 @@ from .errors import ConfigError
 class IntrinsicsConfig:
     """Where each image's pinhole intrinsics come from (see :mod:`geofill.intrinsics`)."""
 
-    #: Explicit focal length (px of the input image) for both images; wins over everything.
+    #: Explicit focal length (px of the input image) for both images; wins over EXIF and defaults.
     focal_px: float | None = None
+    #: Full calibration [fx, fy, cx, cy] (px of the input target image); wins over everything.
+    target: list[float] | None = None
+    #: Full calibration [fx, fy, cx, cy] (px of the input source image); wins over everything.
+    source: list[float] | None = None
     #: Use EXIF FocalLengthIn35mmFilm when present.
     use_exif: bool = True
 
@@ -62,8 +66,9 @@ class GeometryConfig:
     min_point_parallax_deg: float = 0.05
     #: Least squares or a robust (Huber, IRLS) variant for the depth scale/offset fit.
     depth_fit: Literal["lstsq", "robust"] = "robust"
-    #: Space of the affine depth fit; ``auto`` = the depth backend's native space.
-    fit_space: Literal["auto", "depth", "inverse"] = "auto"
+    #: Space of the affine depth fit. Inverse depth measured better on the GT-depth pairs
+    #: (benchmarks/depth_fit_space.py; docs/results.md) whatever the backend's native space.
+    fit_space: Literal["depth", "inverse"] = "inverse"
 
 
 @dataclass

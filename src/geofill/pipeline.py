@@ -119,8 +119,9 @@ def prepare(
     source_exif: HasFocal35 | None,
 ) -> WorkingViews:
     """Working-resolution float views and per-image intrinsics (resolved at input size, then resized)."""
-    K_t = resolve_intrinsics(target.shape[1], target.shape[0], cfg.intrinsics, target_exif)
-    K_s = resolve_intrinsics(source.shape[1], source.shape[0], cfg.intrinsics, source_exif)
+    ic = cfg.intrinsics
+    K_t = resolve_intrinsics(target.shape[1], target.shape[0], ic, target_exif, ic.target)
+    K_s = resolve_intrinsics(source.shape[1], source.shape[0], ic, source_exif, ic.source)
     t = _resize_long(target, cfg.working_max_side)
     s = _resize_long(source, cfg.working_max_side)
     # Area-resampled: any hole pixel of the input makes its working pixel a hole (no object leaks).

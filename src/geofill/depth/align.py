@@ -1,9 +1,13 @@
 """Fix a depth prediction's affine ambiguity with triangulated points (the paper's s^i, b^i).
 
-Where the fit lives: in the backend's native space by default. For inverse-depth predictions the fit
-is in inverse depth, where (i) learned networks' ambiguity is affine (an offset in depth space would
-not be), and (ii) a residual in 1/z is proportional to the pixel displacement it causes for a given
-baseline (disparity = f b / z), so least squares there weighs points by what the render sees.
+Where the fit lives: inverse depth by default, whatever the backend's native space, because
+(i) learned networks' ambiguity is affine in inverse depth (an offset in depth space cannot express
+their shift), (ii) a residual in 1/z is proportional to the pixel displacement it causes for a given
+baseline (disparity = f b / z), so least squares there weighs points by what the render sees, and
+(iii) measured on the four GT-depth pairs (benchmarks/depth_fit_space.py), it gave a lower AbsRel
+(0.068 vs 0.075) and an equal or higher hole PSNR on every pair with the true intrinsics, and +0.9 dB
+mean hole PSNR with the default intrinsics guess, since an inverse-depth offset also absorbs
+principal-point (stereo ``doffs``) errors.
 """
 
 from __future__ import annotations
@@ -73,7 +77,7 @@ def to_depth(values: np.ndarray, space: str, scale: float, offset: float) -> tup
 
 def align_depth(pred: DepthPrediction, points: TriangulatedPoints, cfg: GeometryConfig) -> AlignedDepth:
     """Scale/offset of ``pred`` fitted to ``points`` (see module docstring for the space)."""
-    space = pred.space if cfg.fit_space == "auto" else cfg.fit_space
+    space = cfg.fit_space
     values = pred.values
     if space != pred.space:
         with np.errstate(divide="ignore"):
@@ -88,7 +92,7 @@ def align_depth(pred: DepthPrediction, points: TriangulatedPoints, cfg: Geometry
     elif n < MIN_POINTS_AFFINE:
         raise ValueError(f"only {n} triangulated points fall on valid depth; cannot fit scale/offset")
     else:
-        scale_only = pred.metric and space == "depth"
+        scale_only = pred.metric  # a pure scale is a pure scale in either space
         s, b = fit_affine(x[ok], y[ok], cfg.depth_fit == "robust", scale_only)
         method = "scale-only" if scale_only else cfg.depth_fit
     depth, neg = to_depth(values, space, s, b)

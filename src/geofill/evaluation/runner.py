@@ -370,6 +370,20 @@ def _width_px(pair: Pair, width_720p: float) -> float:
     return scaled_stroke_width(width_720p, h, w)
 
 
+def pair_mask(
+    pair: Pair,
+    seed: int = 0,
+    width_720p: float = DEFAULT_STROKE_WIDTH_720P,
+    area_range: tuple[float, float] = DEFAULT_AREA_RANGE,
+) -> np.ndarray:
+    """The evaluation hole of ``pair`` (bool): the same for the same pair id, seed and width."""
+    h, w = pair.target.shape[:2]
+    width_px = _width_px(pair, width_720p)
+    return brush_strokes(
+        h, w, seed=mask_seed(pair.id, seed), mean_width_px=width_px, area_range=area_range
+    ).render(width_px)
+
+
 # ---------------------------------------------------------------------------------------------
 # Main entry points
 
@@ -400,12 +414,9 @@ def run_eval(
     progress = _Progress(len(pairs) * len(methods))
     rows: list[EvalRow] = []
     for pair in pairs:
-        h, w = pair.target.shape[:2]
         width_px = _width_px(pair, width_720p)
-        strokes = brush_strokes(
-            h, w, seed=mask_seed(pair.id, seed), mean_width_px=width_px, area_range=area_range
-        )
-        hole = _Hole(strokes.render(width_px), width_720p, width_px, group_value(pair.meta, by) if by else "")
+        mask = pair_mask(pair, seed, width_720p, area_range)
+        hole = _Hole(mask, width_720p, width_px, group_value(pair.meta, by) if by else "")
         cv2.imwrite(str(out / "masks" / f"{pair.id}.png"), hole.mask.astype(np.uint8) * 255)
         results = _evaluate_pair(pair, hole, methods, lpips, progress)
         rows.extend(r for r, _ in results)
