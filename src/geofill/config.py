@@ -99,6 +99,44 @@ class RenderConfig:
 
 
 @dataclass
+class RefineConfig:
+    """Residual alignment and colour correction of the render, then its merge with single-image
+    inpainting (:mod:`geofill.refine`, :mod:`geofill.merge`). Pixel distances are at a 1280-px
+    long side and scale with the image."""
+
+    #: Colour/exposure correction fitted on the known band: "none"; "global" (one robust gain +
+    #: offset per channel, as the homography baseline); "gain" (spatially smooth gain + offset);
+    #: "poisson" (gradient-domain: the render's gradients, the target's values on the border).
+    colour: Literal["none", "global", "gain", "poisson"] = "gain"
+    #: Residual alignment: dense optical flow (OpenCV DIS) render -> target on the known band,
+    #: carried into the hole by membrane interpolation and composed with the correspondence field.
+    flow: bool = True
+    #: Width (px) of the known ring around the hole that refinement measures on.
+    band_px: float = 32.0
+    #: Long side (px) of the image-equivalent resolution at which flow and colour fields are
+    #: estimated; they are applied at the input resolution.
+    max_side: int = 1280
+    #: DIS preset (speed/accuracy).
+    flow_preset: Literal["ultrafast", "fast", "medium"] = "fast"
+    #: Band flow vectors longer than this (px) or failing the forward-backward check by more than
+    #: ``flow_consistency_px`` are not trusted.
+    flow_max_px: float = 24.0
+    flow_consistency_px: float = 1.0
+    #: Gaussian scale (px) of the local statistics of the "gain" colour model.
+    gain_sigma_px: float = 8.0
+    #: Regulariser of the local gain (intensity variance): where the render's local variance is
+    #: below it (flat regions, where gain and offset cannot be told apart) the gain tends to the
+    #: global one and the offset does the work.
+    gain_eps: float = 0.0005
+    #: Gaussian scale (px) of the smoothing of the target - render difference on the band before
+    #: the "poisson" solve (0: exact Poisson blend; larger: fewer streaks from misaligned texture).
+    poisson_smooth_px: float = 4.0
+    #: Width (px) of the soft blend (M_single) from the render into single-image inpainting where the
+    #: render has no data; 0 pastes with hard edges.
+    feather_px: float = 4.0
+
+
+@dataclass
 class InpaintConfig:
     """Single-image inpainting for what the source cannot supply."""
 
@@ -116,6 +154,7 @@ class FillConfig:
     depth: DepthConfig = field(default_factory=DepthConfig)
     render: RenderConfig = field(default_factory=RenderConfig)
     inpaint: InpaintConfig = field(default_factory=InpaintConfig)
+    refine: RefineConfig = field(default_factory=RefineConfig)
     #: Geometry (matching, pose, depth, optimisation) runs with the long side capped at this (px);
     #: rendering and compositing run at the input resolution.
     working_max_side: int = 1280

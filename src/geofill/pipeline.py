@@ -19,12 +19,13 @@ from .camera import Intrinsics
 from .config import FillConfig
 from .depth import DepthContext, get_backend
 from .depth.align import AlignedDepth, align_depth
-from .inpaint import inpaint_single
 from .intrinsics import HasFocal35, resolve_intrinsics
 from .io import as_rgb_uint8, validate_pair
 from .matching import Matches, match_pair
+from .merge import merge_fill
 from .pose import PoseEstimate, estimate_pose
 from .progress import Progress
+from .refine import RefinedRender, refine_render
 from .render import RenderResult, render_mesh
 from .triangulation import TriangulatedPoints, triangulate
 
@@ -68,6 +69,7 @@ class FillReport:
     depth_fit: dict[str, Any] = field(default_factory=dict)
     hole_pixels: int = 0
     hole_coverage: float = 0.0  # fraction of hole pixels the rendered source supplies
+    refine: dict[str, Any] = field(default_factory=dict)  # geofill.refine.RefineInfo
     timings_s: dict[str, float] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
@@ -88,6 +90,7 @@ class FillArtifacts:
     depth: AlignedDepth | None = None
     render: RenderResult | None = None
     warped: np.ndarray | None = None  # HxWx3 uint8 rendered source at target resolution
+    refined: RefinedRender | None = None
 
 
 @dataclass
@@ -151,17 +154,11 @@ def render_roi(hole: np.ndarray, margin: int) -> tuple[int, int, int, int]:
 def composite(
     target: np.ndarray, hole: np.ndarray, warped: np.ndarray | None, alpha: np.ndarray | None, cfg: FillConfig
 ) -> np.ndarray:
-    """Rendered source inside the hole where it exists, single-image inpainting for the rest;
-    pixels outside the hole are copied from ``target`` unchanged."""
-    out = target.copy()
-    uncovered = hole.copy()
-    if warped is not None and alpha is not None:
-        use = hole & alpha
-        out[use] = warped[use]
-        uncovered &= ~alpha
-    out = inpaint_single(out, uncovered, cfg.inpaint)
-    out[~hole] = target[~hole]
-    return out
+    """Rendered source inside the hole where it exists, single-image inpainting for the rest,
+    merged with a feathered blending map (:func:`geofill.merge.merge_fill`); pixels outside the
+    hole are copied from ``target`` unchanged."""
+    feather = cfg.refine.feather_px * max(hole.shape) / 1280.0
+    return merge_fill(target, hole, warped, alpha, cfg.inpaint, feather)
 
 
 def fill(
@@ -301,7 +298,18 @@ def _reference_fill(target, hole, source, cfg, target_exif, source_exif, prog, r
             f"the source covers only {100 * coverage:.1f}% of the hole "
             f"(< {100 * cfg.render.min_hole_coverage:.0f}%): it does not see what the hole hides"
         )
-    return warped, rendered.alpha
+
+    # --- refinement (issue 6): residual flow alignment and colour correction of the render ---
+    with prog.stage("refine") as notes:
+        refined = refine_render(target, hole, source, rendered, cfg.refine)
+        art.refined = refined
+        report.refine = asdict(refined.info)
+        i = refined.info
+        notes.append(
+            f"flow {'applied' if i.flow_applied else 'off'} (band median {i.flow_median_band_px:.2f} px), "
+            f"colour {i.colour}: band error {i.band_error_before:.1f} -> {i.band_error_after:.1f}"
+        )
+    return refined.image, refined.alpha
 
 
 def _dense_depth(views, pose, pts, source_size, cfg) -> AlignedDepth:

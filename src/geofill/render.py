@@ -33,17 +33,32 @@ class RenderResult:
     """Target-view correspondence field of the rendered source mesh.
 
     ``map_x``/``map_y``: source pixel coordinates seen at each target pixel (-1 where ``alpha`` is
-    False); ``depth``: target-camera z of the visible surface (inf where empty)."""
+    False); ``depth``: target-camera z of the visible surface (inf where empty); ``roi``: the
+    half-open target window (x0, y0, x1, y1) that was rasterised (nothing is rendered outside)."""
 
     map_x: np.ndarray  # (H, W) float32
     map_y: np.ndarray  # (H, W) float32
     depth: np.ndarray  # (H, W) float32
     alpha: np.ndarray  # (H, W) bool
+    roi: tuple[int, int, int, int] | None = None
+
+    def window(self) -> tuple[slice, slice]:
+        """Row and column slices of :attr:`roi` (the whole image when it is None)."""
+        if self.roi is None:
+            return slice(None), slice(None)
+        x0, y0, x1, y1 = self.roi
+        return slice(y0, y1), slice(x0, x1)
 
     def sample(self, source: np.ndarray) -> np.ndarray:
         """Source colours at the correspondence field, bilinear; zero where ``alpha`` is False."""
-        out = cv2.remap(source, self.map_x, self.map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        out[~self.alpha] = 0
+        rows, cols = self.window()
+        out = np.zeros((*self.alpha.shape, *source.shape[2:]), source.dtype)
+        win = cv2.remap(
+            source, self.map_x[rows, cols], self.map_y[rows, cols], cv2.INTER_LINEAR,
+            borderMode=cv2.BORDER_REPLICATE,
+        )  # fmt: skip
+        win[~self.alpha[rows, cols]] = 0
+        out[rows, cols] = win
         return out
 
 
@@ -71,6 +86,7 @@ def triangle_masks(depth: np.ndarray, threshold: float) -> tuple[np.ndarray, np.
 def _raster_triangle(
     ax, ay, az, au, av, bx, by, bz, bu, bv, cx, cy, cz, cu, cv, x0, y0, x1, y1, zbuf, mx, my
 ):
+    """Z-buffer one triangle into the ROI buffers (indexed from the ROI's corner (x0, y0))."""
     area = (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
     if abs(area) < 1e-12:
         return
@@ -91,33 +107,66 @@ def _raster_triangle(
                 continue
             iz = w0 * iza + w1 * izb + w2 * izc
             z = 1.0 / iz
-            if z < zbuf[y, x]:
-                zbuf[y, x] = z
-                mx[y, x] = (w0 * au * iza + w1 * bu * izb + w2 * cu * izc) * z
-                my[y, x] = (w0 * av * iza + w1 * bv * izb + w2 * cv * izc) * z
+            if z < zbuf[y - y0, x - x0]:
+                zbuf[y - y0, x - x0] = z
+                mx[y - y0, x - x0] = (w0 * au * iza + w1 * bu * izb + w2 * cu * izc) * z
+                my[y - y0, x - x0] = (w0 * av * iza + w1 * bv * izb + w2 * cv * izc) * z
+
+
+@njit(cache=True, inline="always")
+def _edge_ok(a, b, threshold):
+    # Same test as footprint_ok; a NaN depth compares False and cuts the edge.
+    return 2.0 * abs(a - b) / (a + b) <= threshold
+
+
+@njit(cache=True, inline="always")
+def _project(depth, i, j, ks, rt, kt):
+    """Target (x, y, z) of source pixel centre (row i, column j); z = -1 without a valid depth."""
+    d = depth[i, j]
+    if not d > 0.0:  # NaN, zero or negative: no surface
+        return 0.0, 0.0, -1.0
+    X = (j - ks[2]) / ks[0] * d
+    Y = (i - ks[3]) / ks[1] * d
+    Xt = rt[0, 0] * X + rt[0, 1] * Y + rt[0, 2] * d + rt[0, 3]
+    Yt = rt[1, 0] * X + rt[1, 1] * Y + rt[1, 2] * d + rt[1, 3]
+    Zt = rt[2, 0] * X + rt[2, 1] * Y + rt[2, 2] * d + rt[2, 3]
+    if Zt == 0.0:
+        return 0.0, 0.0, -1.0
+    return kt[0] * Xt / Zt + kt[2], kt[1] * Yt / Zt + kt[3], Zt
 
 
 @njit(cache=True)
-def _raster_mesh(px, py, pz, su, sv, tri_a, tri_b, near, x0, y0, x1, y1, zbuf, mx, my):
-    hs, ws = px.shape
+def _raster_mesh(depth, ks, rt, kt, threshold, near, x0, y0, x1, y1, zbuf, mx, my):
+    """Rasterise every surviving grid triangle. Vertices are projected on the fly (float64 in
+    registers) rather than into full-size arrays: at 4K those arrays alone would cost ~0.8 GB."""
+    hs, ws = depth.shape
     for i in range(hs - 1):
         for j in range(ws - 1):
-            ta = tri_a[i, j] and pz[i, j] > near and pz[i, j + 1] > near and pz[i + 1, j] > near
-            tb = tri_b[i, j] and pz[i, j + 1] > near and pz[i + 1, j + 1] > near and pz[i + 1, j] > near
+            da, db, dc, dd = depth[i, j], depth[i, j + 1], depth[i + 1, j], depth[i + 1, j + 1]
+            # Quad corners a=(i, j), b=(i, j+1), c=(i+1, j), d=(i+1, j+1): see triangle_masks.
+            diag = _edge_ok(db, dc, threshold)
+            ta = diag and _edge_ok(da, db, threshold) and _edge_ok(da, dc, threshold)
+            tb = diag and _edge_ok(db, dd, threshold) and _edge_ok(dc, dd, threshold)
+            if not (ta or tb):
+                continue
+            bx, by, bz = _project(depth, i, j + 1, ks, rt, kt)
+            cx, cy, cz = _project(depth, i + 1, j, ks, rt, kt)
+            if bz <= near or cz <= near:
+                continue
             if ta:
-                _raster_triangle(
-                    px[i, j], py[i, j], pz[i, j], su[i, j], sv[i, j],
-                    px[i, j + 1], py[i, j + 1], pz[i, j + 1], su[i, j + 1], sv[i, j + 1],
-                    px[i + 1, j], py[i + 1, j], pz[i + 1, j], su[i + 1, j], sv[i + 1, j],
-                    x0, y0, x1, y1, zbuf, mx, my,
-                )  # fmt: skip
+                ax, ay, az = _project(depth, i, j, ks, rt, kt)
+                if az > near:
+                    _raster_triangle(
+                        ax, ay, az, j, i, bx, by, bz, j + 1, i, cx, cy, cz, j, i + 1,
+                        x0, y0, x1, y1, zbuf, mx, my,
+                    )  # fmt: skip
             if tb:
-                _raster_triangle(
-                    px[i, j + 1], py[i, j + 1], pz[i, j + 1], su[i, j + 1], sv[i, j + 1],
-                    px[i + 1, j + 1], py[i + 1, j + 1], pz[i + 1, j + 1], su[i + 1, j + 1], sv[i + 1, j + 1],
-                    px[i + 1, j], py[i + 1, j], pz[i + 1, j], su[i + 1, j], sv[i + 1, j],
-                    x0, y0, x1, y1, zbuf, mx, my,
-                )  # fmt: skip
+                ex, ey, ez = _project(depth, i + 1, j + 1, ks, rt, kt)
+                if ez > near:
+                    _raster_triangle(
+                        bx, by, bz, j + 1, i, ex, ey, ez, j + 1, i + 1, cx, cy, cz, j, i + 1,
+                        x0, y0, x1, y1, zbuf, mx, my,
+                    )  # fmt: skip
 
 
 def project_source_grid(depth: np.ndarray, K_s: Intrinsics, K_t: Intrinsics, T: np.ndarray):
@@ -148,23 +197,45 @@ def render_mesh(
     """Render the source mesh (source depth ``depth_s`` in pose units, NaN = no surface) into the
     target image of ``K_t``'s size, pose ``T`` source->target.
 
-    ``roi`` = (x0, y0, x1, y1) restricts rasterisation to that target window (half-open)."""
+    ``roi`` = (x0, y0, x1, y1) restricts rasterisation to that target window (half-open); the
+    result's arrays are full-size, empty outside it."""
     if depth_s.shape != (K_s.height, K_s.width):
         raise ValueError(f"depth {depth_s.shape} does not match source intrinsics {(K_s.height, K_s.width)}")
     H, W = K_t.height, K_t.width
     x0, y0, x1, y1 = roi if roi is not None else (0, 0, W, H)
-    u, v, z = project_source_grid(depth_s, K_s, K_t, T)
-    tri_a, tri_b = triangle_masks(depth_s, edge_threshold)
-    hs, ws = depth_s.shape
-    su, sv = np.meshgrid(np.arange(ws, dtype=np.float64), np.arange(hs, dtype=np.float64))
-    finite_z = z[np.isfinite(z)]
-    near = 1e-6 * (float(np.median(np.abs(finite_z))) if finite_z.size else 1.0)
-    z = np.where(np.isfinite(z), z, -1.0)
-    zbuf = np.full((H, W), np.inf, dtype=np.float64)
-    mx = np.full((H, W), -1.0, dtype=np.float64)
-    my = np.full((H, W), -1.0, dtype=np.float64)
-    _raster_mesh(
-        np.nan_to_num(u), np.nan_to_num(v), z, su, sv, tri_a, tri_b, near, x0, y0, x1, y1, zbuf, mx, my
-    )
-    alpha = np.isfinite(zbuf)
-    return RenderResult(mx.astype(np.float32), my.astype(np.float32), zbuf.astype(np.float32), alpha)
+    x0, y0, x1, y1 = max(int(x0), 0), max(int(y0), 0), min(int(x1), W), min(int(y1), H)
+    depth = np.ascontiguousarray(depth_s, dtype=np.float32)
+    # Cull vertices at (or behind) the target camera plane; the scale comes from the source depth
+    # (a strided sample: the median only sets an order of magnitude).
+    finite = depth[:: max(1, depth.shape[0] // 256), :: max(1, depth.shape[1] // 256)]
+    finite = finite[np.isfinite(finite) & (finite > 0)]
+    near = 1e-6 * (float(np.median(finite)) if finite.size else 1.0)
+    ks = np.array([K_s.fx, K_s.fy, K_s.cx, K_s.cy], np.float64)
+    kt = np.array([K_t.fx, K_t.fy, K_t.cx, K_t.cy], np.float64)
+    shape = (max(y1 - y0, 0), max(x1 - x0, 0))
+    zbuf = np.full(shape, np.inf, np.float64)
+    mx = np.full(shape, -1.0, np.float32)
+    my = np.full(shape, -1.0, np.float32)
+    if zbuf.size:
+        _raster_mesh(
+            depth,
+            ks,
+            np.asarray(T, np.float64)[:3],
+            kt,
+            float(edge_threshold),
+            near,
+            x0,
+            y0,
+            x1,
+            y1,
+            zbuf,
+            mx,
+            my,
+        )
+    full_z = np.full((H, W), np.inf, np.float32)
+    full_x = np.full((H, W), -1.0, np.float32)
+    full_y = np.full((H, W), -1.0, np.float32)
+    full_z[y0:y1, x0:x1] = zbuf
+    full_x[y0:y1, x0:x1] = mx
+    full_y[y0:y1, x0:x1] = my
+    return RenderResult(full_x, full_y, full_z, np.isfinite(full_z), (x0, y0, x1, y1))

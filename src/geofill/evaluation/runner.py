@@ -93,7 +93,18 @@ register_method("homography", _homography_method)
 
 #: geofill variants selectable by name: config overrides on top of the run's base config
 #: (``geofill eval --config/--set``). The paper's ablations are entries here.
-GEOFILL_VARIANTS: dict[str, dict[str, Any]] = {"geofill": {}}
+GEOFILL_VARIANTS: dict[str, dict[str, Any]] = {
+    "geofill": {},
+    # Refinement ablations (issue 6): the render pasted as is; colour only; colour + residual flow;
+    # and each colour model with the flow on.
+    "geofill:no-refine": {"refine.colour": "none", "refine.flow": False, "refine.feather_px": 0.0},
+    "geofill:colour": {"refine.flow": False},
+    "geofill:colour+flow": {"refine.flow": True},
+    "geofill:flow": {"refine.colour": "none", "refine.flow": True},
+    "geofill:global": {"refine.colour": "global"},
+    "geofill:gain": {"refine.colour": "gain"},
+    "geofill:poisson": {"refine.colour": "poisson"},
+}
 #: What ``--methods`` defaults to: the baselines and geofill as configured (variants by name).
 DEFAULT_METHODS = (*BASELINES, "geofill")
 

@@ -1,0 +1,100 @@
+"""Refinement variants on identical renders: each pair is rendered once (default pipeline up to
+the render, refinement off), then every variant refines and merges that same render, so the
+comparison is not blurred by run-to-run differences of the earlier stages. Hole PSNR per pair and
+variant, the homography baseline on the same hole, and means / wins at the end.
+
+    .venv/bin/python benchmarks/refine_variants.py [--pairs ../shared/data/pairs] [--set key=value ...]
+        [--variant NAME:key=value,key=value ...]
+
+Holes are the evaluation's deterministic brush-stroke masks (seed 0). Figures, not a test.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+from pathlib import Path
+
+import numpy as np
+
+from geofill.config import FillConfig, parse_overrides
+from geofill.evaluation.baselines import BaselineError, homography_fill
+from geofill.evaluation.metrics import psnr
+from geofill.evaluation.runner import load_pairs, pair_mask
+from geofill.merge import merge_fill
+from geofill.pipeline import fill
+from geofill.refine import refine_render
+
+#: name -> refine-config overrides (on top of the base config's refine section).
+VARIANTS = {
+    "none": {"colour": "none", "flow": False, "feather_px": 0.0},
+    "feather": {"colour": "none", "flow": False},
+    "global": {"colour": "global", "flow": False},
+    "gain": {"colour": "gain", "flow": False},
+    "poisson": {"colour": "poisson", "flow": False},
+    "flow": {"colour": "none", "flow": True},
+    "flow+global": {"colour": "global", "flow": True},
+    "flow+gain": {"colour": "gain", "flow": True},
+    "flow+poisson": {"colour": "poisson", "flow": True},
+}
+
+
+def _parse_variant(text: str) -> tuple[str, dict]:
+    name, _, rest = text.partition(":")
+    items = [f"{kv}" for kv in rest.split(",") if kv]
+    return name, parse_overrides(items)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--pairs", default=str(Path(__file__).resolve().parents[2] / "shared" / "data" / "pairs"))
+    ap.add_argument("--set", action="append", metavar="KEY=VALUE", help="base config override (repeatable)")
+    ap.add_argument(
+        "--variant", action="append", metavar="NAME:k=v,...", help="refine variants to run instead"
+    )
+    ap.add_argument("--seed", type=int, default=0)
+    args = ap.parse_args(argv)
+    base = FillConfig().updated(parse_overrides(args.set))
+    variants = dict(_parse_variant(v) for v in args.variant) if args.variant else VARIANTS
+    names = ["homography", *variants]
+    print(f"{'pair':<34s}" + "".join(f"{n:>14s}" for n in names))
+    table: dict[str, list[float]] = {n: [] for n in names}
+    seconds: dict[str, list[float]] = {n: [] for n in variants}
+    for pair in load_pairs([args.pairs]):
+        hole = pair_mask(pair, args.seed)
+        masked = pair.target.copy()
+        masked[hole] = 0
+        try:
+            table["homography"].append(psnr(homography_fill(masked, hole, pair.source), pair.target, hole))
+        except BaselineError:
+            table["homography"].append(float("nan"))
+        plain = base.updated({"refine.colour": "none", "refine.flow": False})
+        res = fill(masked, hole, pair.source, plain)
+        for name, overrides in variants.items():
+            cfg = base.updated({f"refine.{k}": v for k, v in overrides.items()})
+            t0 = time.perf_counter()
+            if res.artifacts.render is None or res.report.status != "reference":
+                image = merge_fill(masked, hole, None, None, cfg.inpaint)
+            else:
+                ref = refine_render(masked, hole, pair.source, res.artifacts.render, cfg.refine)
+                feather = cfg.refine.feather_px * max(hole.shape) / 1280.0
+                image = merge_fill(masked, hole, ref.image, ref.alpha, cfg.inpaint, feather)
+            seconds[name].append(time.perf_counter() - t0)
+            assert np.array_equal(image[~hole], pair.target[~hole])
+            table[name].append(psnr(image, pair.target, hole))
+        print(f"{pair.id:<34s}" + "".join(f"{table[n][-1]:>14.2f}" for n in names), flush=True)
+    homo = np.array(table["homography"])
+    print(f"{'MEAN':<34s}" + "".join(f"{np.nanmean(table[n]):>14.2f}" for n in names))
+    print(f"{'MEDIAN':<34s}" + "".join(f"{np.nanmedian(table[n]):>14.2f}" for n in names))
+    wins = [int(np.sum(np.array(table[n]) > homo)) for n in names[1:]]
+    print(f"{'wins vs homography':<34s}{'-':>14s}" + "".join(f"{w:>11d}/{len(homo):<2d}" for w in wins))
+    print(
+        f"{'refine+merge s (median)':<34s}{'':>14s}"
+        + "".join(f"{statistics.median(seconds[n]):>14.3f}" for n in variants)
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
