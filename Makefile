@@ -4,7 +4,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: setup demo test lint bench eval clean
+.PHONY: setup demo test lint results clean
 
 $(STAMP): pyproject.toml
 	python3 -m venv $(VENV)
@@ -25,8 +25,8 @@ lint: $(STAMP)
 test: lint
 	$(PY) -m pytest -n 2 -q
 
-bench: $(STAMP)
-	$(PY) benchmarks/pairs.py
+results: $(STAMP)
+	$(PY) benchmarks/make_results.py
 
 clean:
 	rm -rf $(VENV) demo_out .pytest_cache .ruff_cache

@@ -565,3 +565,24 @@ def test_real_pairs_load_with_meta():
         assert p.target.dtype == np.uint8 and p.target.ndim == 3 and p.source.shape == p.target.shape
         # meta.json's kind is 'category (details)'; "photo sequence (...)" groups as "photo"
         assert group_value(p.meta, "kind") in {"rgbd", "stereo", "video", "handheld-video", "photos", "photo"}
+
+
+def test_eval_of_geofill_on_synthetic_scenes(tmp_path):
+    """The whole protocol with the real pipeline in the loop: geofill beats Telea on exact-GT scenes,
+    its stage timings are recorded and a config override reaches the method."""
+    out = tmp_path / "out"
+    argv = ["--pairs", "synthetic:2", "--out", str(out), "--methods", "opencv_inpaint,geofill"]
+    assert main_eval([*argv, "--set", "matching.max_features=3000"]) == 0
+    rows = _read_csv(out / "results.csv")
+    assert {(r["pair"], r["method"]) for r in rows} == {
+        (p, m) for p in ("synthetic_000", "synthetic_001") for m in ("opencv_inpaint", "geofill")
+    }
+    by = {(r["pair"], r["method"]): r for r in rows}
+    for p in ("synthetic_000", "synthetic_001"):
+        assert by[(p, "geofill")]["error"] == ""
+        assert json.loads(by[(p, "geofill")]["info"])["status"] == "reference"
+        assert float(by[(p, "geofill")]["psnr_hole"]) > float(by[(p, "opencv_inpaint")]["psnr_hole"]) + 2.0
+    stages = {r["stage"] for r in _read_csv(out / "timings.csv") if r["method"] == "geofill"}
+    assert {"match", "pose", "depth", "render"} <= stages
+    assert "geofill" in (out / "summary.md").read_text()
+    assert main_eval([*argv, "--set", "matching.nope=1"]) == 3
