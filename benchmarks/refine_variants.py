@@ -4,7 +4,10 @@ comparison is not blurred by run-to-run differences of the earlier stages. Hole 
 variant, the homography baseline on the same hole, and means / wins at the end.
 
     .venv/bin/python benchmarks/refine_variants.py [--pairs ../shared/data/pairs] [--set key=value ...]
-        [--variant NAME:key=value,key=value ...]
+        [--variant NAME:key=value,key=value ...] [--render-cache DIR]
+
+``--render-cache DIR`` stores each pair's render (correspondence field, alpha) and reuses it in
+later runs, so separate runs compare refinement settings on the very same renders.
 
 Holes are the evaluation's deterministic brush-stroke masks (seed 0). Figures, not a test.
 """
@@ -25,6 +28,7 @@ from geofill.evaluation.runner import load_pairs, pair_mask
 from geofill.merge import merge_fill
 from geofill.pipeline import fill
 from geofill.refine import refine_render
+from geofill.render import RenderResult
 
 #: name -> refine-config overrides (on top of the base config's refine section).
 VARIANTS = {
@@ -46,6 +50,27 @@ def _parse_variant(text: str) -> tuple[str, dict]:
     return name, parse_overrides(items)
 
 
+def _render(pair, masked, hole, cfg: FillConfig, cache: Path | None) -> RenderResult | None:
+    """The pair's render with refinement off (None when the pipeline falls back), cached in ``cache``."""
+    path = cache / f"{pair.id}.npz" if cache is not None else None
+    if path is not None and path.is_file():
+        z = np.load(path)
+        if not z["ok"]:
+            return None
+        return RenderResult(z["map_x"], z["map_y"], z["depth"], z["alpha"], tuple(int(v) for v in z["roi"]))
+    res = fill(masked, hole, pair.source, cfg.updated({"refine.colour": "none", "refine.flow": False}))
+    r = res.artifacts.render if res.report.status == "reference" else None
+    if path is not None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        if r is None:
+            np.savez(path, ok=False)
+        else:
+            np.savez(
+                path, ok=True, map_x=r.map_x, map_y=r.map_y, depth=r.depth, alpha=r.alpha, roi=np.array(r.roi)
+            )
+    return r
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--pairs", default=str(Path(__file__).resolve().parents[2] / "shared" / "data" / "pairs"))
@@ -54,6 +79,7 @@ def main(argv: list[str] | None = None) -> int:
         "--variant", action="append", metavar="NAME:k=v,...", help="refine variants to run instead"
     )
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--render-cache", type=Path, metavar="DIR", help="store/reuse each pair's render here")
     args = ap.parse_args(argv)
     base = FillConfig().updated(parse_overrides(args.set))
     variants = dict(_parse_variant(v) for v in args.variant) if args.variant else VARIANTS
@@ -69,15 +95,14 @@ def main(argv: list[str] | None = None) -> int:
             table["homography"].append(psnr(homography_fill(masked, hole, pair.source), pair.target, hole))
         except BaselineError:
             table["homography"].append(float("nan"))
-        plain = base.updated({"refine.colour": "none", "refine.flow": False})
-        res = fill(masked, hole, pair.source, plain)
+        rendered = _render(pair, masked, hole, base, args.render_cache)
         for name, overrides in variants.items():
             cfg = base.updated({f"refine.{k}": v for k, v in overrides.items()})
             t0 = time.perf_counter()
-            if res.artifacts.render is None or res.report.status != "reference":
+            if rendered is None:
                 image = merge_fill(masked, hole, None, None, cfg.inpaint)
             else:
-                ref = refine_render(masked, hole, pair.source, res.artifacts.render, cfg.refine)
+                ref = refine_render(masked, hole, pair.source, rendered, cfg.refine)
                 feather = cfg.refine.feather_px * max(hole.shape) / 1280.0
                 image = merge_fill(masked, hole, ref.image, ref.alpha, cfg.inpaint, feather)
             seconds[name].append(time.perf_counter() - t0)

@@ -140,8 +140,13 @@ class RefineConfig:
 class InpaintConfig:
     """Single-image inpainting for what the source cannot supply."""
 
-    method: Literal["telea", "ns"] = "telea"
+    #: "telea"/"ns": OpenCV (no weights); "lama": LaMa through ONNX Runtime (needs ``lama_model``
+    #: or $GEOFILL_LAMA_MODEL); "auto": LaMa when its model resolves, else Telea (reported).
+    method: Literal["telea", "ns", "lama", "auto"] = "auto"
+    #: OpenCV inpainting neighbourhood radius (px).
     radius_px: float = 5.0
+    #: Path of a LaMa ONNX model (e.g. Carve/LaMa-ONNX's lama_fp32.onnx); None: $GEOFILL_LAMA_MODEL.
+    lama_model: str | None = None
 
 
 @dataclass

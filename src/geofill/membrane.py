@@ -104,6 +104,8 @@ def _solve_coarse(
     kf = known.astype(np.float32)
     weight = cv2.resize(kf, size, interpolation=cv2.INTER_AREA)
     sums = resize_channels(field * kf[..., None], size, cv2.INTER_AREA)
+    # A partly known block counts as known; its mean sits up to a block off its centre, which
+    # measured no worse on the real pairs than keeping only whole blocks (which thin out a band).
     coarse_known = weight > 0.0
     coarse = sums / np.maximum(weight, 1e-12)[..., None]
     coarse_domain = cv2.resize(domain.astype(np.float32), size, interpolation=cv2.INTER_AREA) > 0.0

@@ -49,13 +49,11 @@ def merge_fill(
         return inpaint_single(target, hole, inpaint)
     m = blend_map(hole, alpha, feather_px)
     pasted = target.copy()
-    covered = m > 0
-    pasted[covered] = render[covered]
-    single = inpaint_single(pasted, hole & (m < 1.0), inpaint)
-    ramp = hole & (m > 0) & (m < 1)
-    out = single
+    np.copyto(pasted, render, where=(m > 0)[..., None])
+    out = inpaint_single(pasted, hole & (m < 1.0), inpaint)
+    ramp = (m > 0) & (m < 1)
     if ramp.any():
         w = m[ramp][:, None]
-        out[ramp] = np.rint(w * render[ramp] + (1.0 - w) * single[ramp]).astype(np.uint8)
-    out[~hole] = target[~hole]
+        out[ramp] = np.rint(w * render[ramp] + (1.0 - w) * out[ramp]).astype(np.uint8)
+    np.copyto(out, target, where=~hole[..., None])
     return out

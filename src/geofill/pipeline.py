@@ -19,6 +19,7 @@ from .camera import Intrinsics
 from .config import FillConfig
 from .depth import DepthContext, get_backend
 from .depth.align import AlignedDepth, align_depth
+from .inpaint import get_inpainter
 from .intrinsics import HasFocal35, resolve_intrinsics
 from .io import as_rgb_uint8, validate_pair
 from .matching import Matches, match_pair
@@ -70,6 +71,7 @@ class FillReport:
     hole_pixels: int = 0
     hole_coverage: float = 0.0  # fraction of hole pixels the rendered source supplies
     refine: dict[str, Any] = field(default_factory=dict)  # geofill.refine.RefineInfo
+    inpaint_method: str = ""  # single-image inpainter used, and why (geofill.inpaint)
     timings_s: dict[str, float] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
@@ -203,7 +205,9 @@ def fill(
         report.fallbacks.append(str(exc))
         prog.say(f"falling back to single-image inpainting: {exc}")
         warped, alpha = None, None
-    with prog.stage("composite"):
+    with prog.stage("composite") as notes:
+        report.inpaint_method = get_inpainter(cfg.inpaint).description
+        notes.append(f"single-image inpainting: {report.inpaint_method}")
         image = composite(target, hole, warped, alpha, cfg)
     report.timings_s = dict(prog.timings)
     return FillResult(image, report, art)

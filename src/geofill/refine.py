@@ -363,9 +363,9 @@ def refine_render(
     else:
         refined_e = r_e
     info.band_error_after = _band_error(refined_e, t_e, band)
+    r_win[~render.alpha[rows, cols]] = 0
     image = np.zeros_like(target)
     image[rows, cols] = r_win
-    image[~render.alpha] = 0
     return RefinedRender(image, render.alpha, render, info)
 
 

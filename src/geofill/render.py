@@ -212,30 +212,14 @@ def render_mesh(
     near = 1e-6 * (float(np.median(finite)) if finite.size else 1.0)
     ks = np.array([K_s.fx, K_s.fy, K_s.cx, K_s.cy], np.float64)
     kt = np.array([K_t.fx, K_t.fy, K_t.cx, K_t.cy], np.float64)
-    shape = (max(y1 - y0, 0), max(x1 - x0, 0))
-    zbuf = np.full(shape, np.inf, np.float64)
-    mx = np.full(shape, -1.0, np.float32)
-    my = np.full(shape, -1.0, np.float32)
-    if zbuf.size:
+    # Full-size float32 buffers; the kernel writes through views of the ROI (no second copy).
+    zbuf = np.full((H, W), np.inf, np.float32)
+    mx = np.full((H, W), -1.0, np.float32)
+    my = np.full((H, W), -1.0, np.float32)
+    if x1 > x0 and y1 > y0:
+        win = (slice(y0, y1), slice(x0, x1))
+        rt = np.asarray(T, np.float64)[:3]
         _raster_mesh(
-            depth,
-            ks,
-            np.asarray(T, np.float64)[:3],
-            kt,
-            float(edge_threshold),
-            near,
-            x0,
-            y0,
-            x1,
-            y1,
-            zbuf,
-            mx,
-            my,
+            depth, ks, rt, kt, float(edge_threshold), near, x0, y0, x1, y1, zbuf[win], mx[win], my[win]
         )
-    full_z = np.full((H, W), np.inf, np.float32)
-    full_x = np.full((H, W), -1.0, np.float32)
-    full_y = np.full((H, W), -1.0, np.float32)
-    full_z[y0:y1, x0:x1] = zbuf
-    full_x[y0:y1, x0:x1] = mx
-    full_y[y0:y1, x0:x1] = my
-    return RenderResult(full_x, full_y, full_z, np.isfinite(full_z), (x0, y0, x1, y1))
+    return RenderResult(mx, my, zbuf, np.isfinite(zbuf), (x0, y0, x1, y1))
