@@ -71,6 +71,33 @@ SECTIONS = [
         [PY, "benchmarks/speed.py"],
     ),
     Section(
+        "refine_eval",
+        "Refinement ablation on the real pairs (`geofill eval`, issue 6)",
+        "The render pasted as is (`no-refine`), residual flow only (`flow`), colour only (`colour`: smooth "
+        "gain, no flow), and each colour model with the flow (`global` gain+offset, `poisson`); `geofill` is "
+        "the default (smooth gain + flow). Each method runs the whole pipeline, so earlier stages may differ "
+        "between rows where they are not deterministic; the next section compares on identical renders.",
+        _eval(
+            "{out}",
+            "--methods",
+            "homography,geofill,geofill:no-refine,geofill:flow,geofill:colour,geofill:global,geofill:poisson",
+        ),
+        "summary.md",
+    ),
+    Section(
+        "refine",
+        "Refinement variants on identical renders (`benchmarks/refine_variants.py`)",
+        "Each pair rendered once (default pipeline, refinement off); every variant refines and merges that "
+        "same render. Hole PSNR (dB) per pair; `feather` = 4-px feathered merge, no colour/flow.",
+        [PY, "benchmarks/refine_variants.py"],
+    ),
+    Section(
+        "render",
+        "Mesh renderer speed and exactness (`benchmarks/render_bench.py`)",
+        "A 1280x720 ray-cast synthetic pair rendered with its exact depth and pose (1.8 M triangles).",
+        [PY, "benchmarks/render_bench.py"],
+    ),
+    Section(
         "fitspace",
         "Depth scale/offset fit: depth vs inverse-depth space (`benchmarks/depth_fit_space.py`)",
         "GT depth of the GT-depth pairs given to the `file` backend as shifted relative inverse depth or as "

@@ -1,4 +1,4 @@
-"""``--debug-dir`` output: matches, depth, warped source, coverage and the JSON report."""
+"""``--debug-dir`` output: matches, depth, warped and refined source, coverage and the JSON report."""
 
 from __future__ import annotations
 
@@ -73,6 +73,8 @@ def write_debug(out_dir: str | Path, result: FillResult, hole: np.ndarray, cfg: 
         cov[hole & art.render.alpha] = (0, 200, 0)
         cov[hole & ~art.render.alpha] = (220, 0, 0)
         save("coverage.png", cov)  # green: hole filled from source; red: single-image inpainting
+    if art.refined is not None:
+        save("refined.png", art.refined.image)  # after residual flow and colour correction
     report = result.report.to_dict() | {"config": cfg.to_dict()}
     (out / "report.json").write_text(json.dumps(report, indent=2) + "\n")
     written.append(out / "report.json")
