@@ -336,24 +336,16 @@ def refine_render(
                 if scale >= 1.0
                 else cv2.resize(bf.flow, (w, h), interpolation=cv2.INTER_LINEAR) / scale
             )
-            mx, my, alpha = compose_maps(
-                render.map_x[rows, cols], render.map_y[rows, cols], render.alpha[rows, cols], flow
-            )
-            corrected = RenderResult(
-                render.map_x.copy(), render.map_y.copy(), render.depth, render.alpha.copy(), render.roi
-            )
-            corrected.map_x[rows, cols], corrected.map_y[rows, cols], corrected.alpha[rows, cols] = (
-                mx,
-                my,
-                alpha,
-            )
+            corrected = _with_flow(render, flow)
             info.flow_applied = True
             info.flow_trusted_px = bf.n_trusted
             info.flow_median_band_px = bf.median_band_px / scale
             info.flow_max_hole_px = (
                 float(np.linalg.norm(flow[hole_win], axis=1).max()) if hole_win.any() else 0.0
             )
-            info.alpha_lost_px = int((render.alpha[rows, cols] & ~alpha & hole_win).sum())
+            info.alpha_lost_px = int(
+                (render.alpha[rows, cols] & ~corrected.alpha[rows, cols] & hole_win).sum()
+            )
             render = corrected
             r_win, r_e, band = estimate_view(render)
     field = _colour_field(r_e, t_e, band, domain, cfg, px)
@@ -367,6 +359,19 @@ def refine_render(
     image = np.zeros_like(target)
     image[rows, cols] = r_win
     return RefinedRender(image, render.alpha, render, info)
+
+
+def _with_flow(render: RenderResult, flow: np.ndarray) -> RenderResult:
+    """``render`` with its correspondence field composed with ``flow`` (the size of its window)."""
+    rows, cols = render.window()
+    out = RenderResult(
+        render.map_x.copy(), render.map_y.copy(), render.depth, render.alpha.copy(), render.roi
+    )
+    mx, my, alpha = compose_maps(
+        render.map_x[rows, cols], render.map_y[rows, cols], render.alpha[rows, cols], flow
+    )
+    out.map_x[rows, cols], out.map_y[rows, cols], out.alpha[rows, cols] = mx, my, alpha
+    return out
 
 
 def _colour_field(
