@@ -39,16 +39,22 @@ class IntrinsicsConfig:
     #: Prior 1-sigma of log(focal) for the default focal guess (1.0: a factor of e either way).
     prior_sigma_default: float = 1.0
     #: Prior 1-sigma of log(focal) for an EXIF focal (phones' EXIF is usually right to a few %).
-    prior_sigma_exif: float = 0.1
+    #: Below ``model_error``, so by default the pair cannot move an EXIF focal: the estimate checks
+    #: it (report) and takes over only where EXIF is absent, or trusted less than this.
+    prior_sigma_exif: float = 0.05
     #: Focal scales (relative to the prior) searched: log grid from ``search_min_scale`` to
     #: ``search_max_scale`` with ``search_steps`` points, then refined around the best.
     search_min_scale: float = 0.33
     search_max_scale: float = 3.0
     search_steps: int = 13
-    #: Relative increase of the robust Sampson cost read as one standard deviation of the focal. The
-    #: formal likelihood would be far narrower, but SIFT positions carry systematic errors (lens
-    #: distortion, localisation bias) that make it overconfident.
-    search_tolerance: float = 0.05
+    #: The search reads its Sampson cost as a Gaussian likelihood of the focal with the information
+    #: divided by this: SIFT positions carry correlated errors (localisation bias), so the formal
+    #: likelihood is overconfident (25: the standard deviation x5).
+    search_variance_inflation: float = 25.0
+    #: Relative focal error (1 sigma) the pair can never beat: what lens distortion, an off-centre
+    #: principal point or a rolling shutter leave. Estimates on the GT pairs were 0-16 % off where
+    #: more than 70 matches (benchmarks/focal_bench.py).
+    model_error: float = 0.1
     #: Matches used by the search at most (evenly subsampled, for speed).
     search_max_matches: int = 2000
     #: The estimate is kept only if it shrinks the prior's uncertainty to this fraction or less;

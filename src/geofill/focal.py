@@ -6,21 +6,27 @@ information about the focal. Two estimators:
 
 ``search`` (default): a 1-D profile over a focal *scale* applied to the prior focal of the free
 image(s). For each scale on a log grid the best essential matrix is fitted by robust (soft-L1)
-Gauss-Newton on the Sampson errors in pixels, warm-started from the neighbouring scale; the
-profile cost is turned into a likelihood (a relative cost increase of ``search_tolerance`` counts
-as one standard deviation), multiplied by the log-normal prior of the focal, minimised on the grid
-and refined in between. The uncertainty is the posterior's width.
+Gauss-Newton on the Sampson errors in pixels, warm-started from the neighbouring scale; the best
+scale is refined between its grid neighbours. The profile is read as a likelihood of log(focal)
+(deflated by ``search_variance_inflation``, floored at ``model_error``) and multiplied by the
+log-normal prior of the focal; the uncertainty is the wider of the local posterior and the
+profile's own 1-sigma interval.
 
 ``bougnoux``: Bougnoux's closed form (1998) of both focal lengths from F with the principal points
 at the image centres; its sensitivity is measured by re-fitting F on bootstrap resamples of the
-matches. Degenerate whenever the optical axes are coplanar, which includes every yaw-only motion.
+matches. Singular whenever the optical axes are coplanar, which includes every yaw-only motion.
 
-``auto`` takes whichever of the two is more certain.
+``auto``: the precision-weighted mean of whichever of the two succeed.
+
+Measured (benchmarks/focal_bench.py): the search is the most accurate on the GT pairs and the
+rendered scenes; Bougnoux is biased on real pairs and fails on coplanar axes.
 
 Two views determine the focal only when the motion allows it: parallel optical axes (rectified
-stereo, pure sideways or forward translation) and near-pure rotation leave it unobservable. This
-is detected, not assumed: when the data shrink the prior's uncertainty by too little
-(``max_uncertainty_ratio``), the prior focal is kept and the report says why.
+stereo, pure sideways or forward translation) leave it unobservable, and optical axes meeting at
+a point equidistant from both centres (a small orbit around an object) nearly so (Sturm, "On
+focal length calibration from two views", CVPR 2001). This is detected, not assumed: when the
+data shrink the prior's uncertainty by too little (``max_uncertainty_ratio``), or contradict it
+(``max_prior_conflict``), the prior focal is kept and the report says why.
 
 Which images are estimated: a focal given by a flag never moves; otherwise the image(s) with the
 weakest prior (largest ``rel_uncertainty``: default > EXIF) move, by one shared scale when both do
@@ -246,27 +252,31 @@ def search_focal(
     h = _CURVATURE_STEP
     curv_data = (data_cost(log_d + h) + data_cost(log_d - h) - 2.0 * seen[log_d]) / h**2
 
-    # Tempered likelihood (a relative cost increase of search_tolerance = one sigma) times the
-    # log-normal prior: locally a product of Gaussians, globally checked on the whole profile.
-    temper = 1.0 / (cfg.search_tolerance * c_min)
-    precision = max(curv_data, 0.0) * temper + 1.0 / sigma**2
-    log_s = float(max(curv_data, 0.0) * temper * log_d / precision)
+    # Likelihood of the focal: the Sampson cost read as a Gaussian log-likelihood (residual variance
+    # c_min / N) with its information divided by search_variance_inflation, since SIFT errors are
+    # correlated; the data's uncertainty never drops under model_error (pinhole violations).
+    # Combined with the log-normal prior as a product of Gaussians, and checked against the whole
+    # profile, which catches flat or one-sided curves that the local curvature misses.
+    temper = len(fit.d_t) / (cfg.search_variance_inflation * c_min)
+    sd_stat = 1.0 / np.sqrt(curv_data * temper) if curv_data > 0 else np.inf
+    sd_data = float(np.hypot(sd_stat, cfg.model_error))
+    precision = 1.0 / sd_data**2 + 1.0 / sigma**2
+    log_s = float(log_d / sd_data**2 / precision)
     xs = np.array(sorted(seen))
     nll = np.array([0.5 * (seen[x] - c_min) * temper + 0.5 * (x / sigma) ** 2 for x in xs])
     sd = float(max(1.0 / np.sqrt(precision), _half_width(xs, nll, nll.min() + 0.5)))
     data_scale = float(np.exp(log_d))
-    sd_data = 1.0 / np.sqrt(curv_data * temper) if curv_data > 0 else np.inf
     conflict = abs(log_d) / np.hypot(sd_data, sigma)
     if conflict > cfg.max_prior_conflict:
         reason = (
             f"the pair's best focal (x{data_scale:.2f} +-{100 * sd_data:.0f}%) contradicts the prior "
             f"(+-{100 * sigma:.0f}%) by {conflict:.1f} sigma: kept the prior"
         )
-        return FocalCandidate("search", False, data_scale, float(sd_data), reason), profile
+        return FocalCandidate("search", False, data_scale, sd_data, reason), profile
     if sd > cfg.max_uncertainty_ratio * sigma:
         reason = (
-            f"focal unobservable from this pair: the search leaves +-{100 * sd:.0f}% "
-            f"(prior +-{100 * sigma:.0f}%; best fit alone at x{data_scale:.2f})"
+            f"focal unobservable from this pair: it leaves +-{100 * sd:.0f}% against the prior's "
+            f"+-{100 * sigma:.0f}% (best fit alone x{data_scale:.2f} +-{100 * min(sd_data, 9.99):.0f}%)"
         )
         if axes_deg < _PARALLEL_AXES_DEG:
             reason += (
@@ -279,8 +289,8 @@ def search_focal(
 
 def bougnoux_focals(F: np.ndarray, c_t: tuple[float, float], c_s: tuple[float, float]) -> tuple[float, float]:
     """Squared focal lengths (target, source) from F (``x_t^T F x_s = 0``, pixels) with principal
-    points ``c_t``, ``c_s`` (Bougnoux 1998; Hartley & Zisserman 2nd ed. eq. 19.? in the form of
-    Sturm et al. 2005). Negative or infinite values mean the configuration is degenerate."""
+    points ``c_t``, ``c_s`` (S. Bougnoux, "From projective to Euclidean space under any practical
+    situation", ICCV 1998). Negative or infinite values mean the configuration is degenerate."""
     A_t = np.array([[1.0, 0.0, c_t[0]], [0.0, 1.0, c_t[1]], [0.0, 0.0, 1.0]])
     A_s = np.array([[1.0, 0.0, c_s[0]], [0.0, 1.0, c_s[1]], [0.0, 0.0, 1.0]])
     Fc = A_t.T @ F @ A_s
