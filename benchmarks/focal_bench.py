@@ -1,7 +1,7 @@
 """Focal-length estimation (issue 7): accuracy of each method, its effect on the pose and on the fill.
 
     .venv/bin/python benchmarks/focal_bench.py [--pairs ../shared/data/pairs] [--seeds 3]
-                                               [--eval-out DIR] [--skip-synthetic]
+                                               [--skip-synthetic] [--skip-psnr] [--eval-out DIR]
 
 1. Real pairs with ground-truth K (meta.json K_target): true focal, the default prior, each
    method's estimate (intrinsics.estimate = none / search / bougnoux / auto) with its focal error,
@@ -11,9 +11,10 @@
 2. Rendered scenes (geofill.synthetic): orbits of 0.5 and 1 unit (4.8 / 9.5 deg of vergence),
    landscape and portrait, true focal 0.5x / 1x / 2x the default, ``--seeds`` seeds each; and the
    degenerate motions (sideways, forward, pure rotation), where the prior must be kept.
-3. With ``--eval-out``: ``geofill eval``'s protocol on every pair for the fixed focal
-   (``geofill_fixed_focal`` = ``--set intrinsics.estimate=none``) and the default config, hole
-   PSNR per pair and the difference.
+3. Hole PSNR with ``geofill eval``'s masks (seed 0) on every pair for the fixed focal
+   (``geofill_fixed_focal`` = ``--set intrinsics.estimate=none``), the default config (estimated)
+   and, where meta.json has it, the true K given as calibration flags. With ``--eval-out`` the
+   first two run through ``geofill eval``'s runner itself (same numbers, plus its files).
 
 The optimiser's focal refinement (issue 5, ``optimize.refine_focal``) is not measured here.
 Timings are wall-clock on this machine. Figures, not a test.
@@ -32,10 +33,11 @@ import numpy as np
 
 from geofill.camera import Intrinsics, default_focal_px, pose_errors_deg
 from geofill.config import FillConfig
+from geofill.evaluation.metrics import psnr
 from geofill.evaluation.runner import load_pairs, pair_mask, run_eval
 from geofill.focal import estimate_focal
 from geofill.matching import match_pair
-from geofill.pipeline import prepare
+from geofill.pipeline import fill, prepare
 from geofill.pose import estimate_pose
 from geofill.synthetic import make_pair
 
@@ -48,13 +50,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--pairs", default=str(Path(__file__).resolve().parents[2] / "shared" / "data" / "pairs"))
     ap.add_argument("--seeds", type=int, default=3, help="synthetic seeds per configuration")
     ap.add_argument("--skip-synthetic", action="store_true")
-    ap.add_argument("--eval-out", help="also run the hole-PSNR comparison, writing the eval here")
+    ap.add_argument("--skip-psnr", action="store_true", help="skip the hole-PSNR comparison (slow)")
+    ap.add_argument("--eval-out", help="run the fixed/estimated PSNR through geofill eval, writing it here")
     args = ap.parse_args(argv)
     pairs = load_pairs([args.pairs])
     real_pairs(pairs)
     if not args.skip_synthetic:
         synthetic(args.seeds)
-    if args.eval_out:
+    if not args.skip_psnr:
         hole_psnr(pairs, args.eval_out)
     return 0
 
@@ -178,24 +181,49 @@ def synthetic(seeds: int) -> None:
     print("(estimated: focal moved; otherwise the prior was kept and its error counts in <5%)\n")
 
 
-def hole_psnr(pairs, out_dir: str) -> None:
-    print("== Hole PSNR (geofill eval protocol, seed 0): fixed focal vs. estimated (default config)")
-    rows = run_eval(pairs, ["geofill_fixed_focal", "geofill"], out_dir, contact_sheets=False)
-    by_pair: dict[str, dict[str, float]] = {}
-    for r in rows:
-        by_pair.setdefault(r.pair, {})[r.method] = r.psnr_hole if r.psnr_hole is not None else float("nan")
-    print(f"{'pair':<34s} {'fixed':>7s} {'estim.':>7s} {'delta':>7s}")
-    deltas = []
-    for pid, v in by_pair.items():
+def hole_psnr(pairs, out_dir: str | None) -> None:
+    """Hole PSNR with the evaluation's masks for the fixed focal, the estimate and (where meta.json
+    has it) the true K. With ``out_dir``, the first two come from ``geofill eval``'s own runner."""
+    print("== Hole PSNR (geofill eval protocol, seed 0): fixed focal, estimated (default), true K")
+    fixed_cfg = CFG.updated({"intrinsics.estimate": "none"})
+    scores: dict[str, dict[str, float]] = {}
+    if out_dir:
+        for r in run_eval(pairs, ["geofill_fixed_focal", "geofill"], out_dir, contact_sheets=False):
+            scores.setdefault(r.pair, {})[r.method] = r.psnr_hole if r.psnr_hole is not None else float("nan")
+    print(f"{'pair':<34s} {'fixed':>7s} {'estim.':>7s} {'delta':>7s} {'true K':>7s} {'delta':>7s}")
+    deltas, deltas_true = [], []
+    for pair in pairs:
+        hole = pair_mask(pair, 0)
+        target = pair.target.copy()
+        target[hole] = 0
+        v = scores.setdefault(pair.id, {})
+        if "geofill" not in v:
+            v["geofill_fixed_focal"] = psnr(
+                fill(target, hole, pair.source, fixed_cfg).image, pair.target, hole
+            )
+            v["geofill"] = psnr(fill(target, hole, pair.source, CFG).image, pair.target, hole)
         d = v["geofill"] - v["geofill_fixed_focal"]
         deltas.append(d)
-        flag = "  <-- worse by > 0.3 dB" if d < -0.3 else ""
-        print(f"{pid:<34s} {v['geofill_fixed_focal']:7.2f} {v['geofill']:7.2f} {d:+7.2f}{flag}")
-    fixed = [v["geofill_fixed_focal"] for v in by_pair.values()]
-    estim = [v["geofill"] for v in by_pair.values()]
+        line = f"{pair.id:<34s} {v['geofill_fixed_focal']:7.2f} {v['geofill']:7.2f} {d:+7.2f}"
+        if pair.meta.get("K_target") is not None:
+            K_t, K_s = (np.array(pair.meta[k]) for k in ("K_target", "K_source"))
+            true_cfg = CFG.updated(
+                {
+                    "intrinsics.target": [K_t[0, 0], K_t[1, 1], K_t[0, 2], K_t[1, 2]],
+                    "intrinsics.source": [K_s[0, 0], K_s[1, 1], K_s[0, 2], K_s[1, 2]],
+                }
+            )
+            p_true = psnr(fill(target, hole, pair.source, true_cfg).image, pair.target, hole)
+            deltas_true.append(p_true - v["geofill_fixed_focal"])
+            line += f" {p_true:7.2f} {deltas_true[-1]:+7.2f}"
+        print(line + ("  <-- estimate worse by > 0.3 dB" if d < -0.3 else ""), flush=True)
+    fixed = [v["geofill_fixed_focal"] for v in scores.values()]
+    estim = [v["geofill"] for v in scores.values()]
     print(
         f"mean {np.mean(fixed):.2f} -> {np.mean(estim):.2f} dB, median {np.median(fixed):.2f} -> "
-        f"{np.median(estim):.2f} dB; worse by > 0.3 dB on {sum(d < -0.3 for d in deltas)}/{len(deltas)} pairs"
+        f"{np.median(estim):.2f} dB; estimate worse by > 0.3 dB on {sum(d < -0.3 for d in deltas)}/"
+        f"{len(deltas)} pairs; true K worse than the fixed focal by > 0.3 dB on "
+        f"{sum(d < -0.3 for d in deltas_true)}/{len(deltas_true)} pairs"
     )
 
 

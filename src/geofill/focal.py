@@ -25,7 +25,7 @@ Two views determine the focal only when the motion allows it: parallel optical a
 stereo, pure sideways or forward translation) leave it unobservable, and optical axes meeting at
 a point equidistant from both centres (a small orbit around an object) nearly so (Sturm, "On
 focal length calibration from two views", CVPR 2001). This is detected, not assumed: when the
-data shrink the prior's uncertainty by too little (``max_uncertainty_ratio``), or contradict it
+data leave too much uncertainty (``max_uncertainty``, ``max_uncertainty_ratio``) or contradict the prior
 (``max_prior_conflict``), the prior focal is kept and the report says why.
 
 Which images are estimated: a focal given by a flag never moves; otherwise the image(s) with the
@@ -273,10 +273,11 @@ def search_focal(
             f"(+-{100 * sigma:.0f}%) by {conflict:.1f} sigma: kept the prior"
         )
         return FocalCandidate("search", False, data_scale, sd_data, reason), profile
-    if sd > cfg.max_uncertainty_ratio * sigma:
+    if sd > min(cfg.max_uncertainty, cfg.max_uncertainty_ratio * sigma):
         reason = (
-            f"focal unobservable from this pair: it leaves +-{100 * sd:.0f}% against the prior's "
-            f"+-{100 * sigma:.0f}% (best fit alone x{data_scale:.2f} +-{100 * min(sd_data, 9.99):.0f}%)"
+            f"focal unobservable from this pair: +-{100 * sd:.0f}% (prior +-{100 * sigma:.0f}%, "
+            f"at most +-{100 * cfg.max_uncertainty:.0f}% used; best fit alone x{data_scale:.2f} "
+            f"+-{100 * min(sd_data, 9.99):.0f}%)"
         )
         if axes_deg < _PARALLEL_AXES_DEG:
             reason += (
@@ -338,7 +339,7 @@ def bougnoux_candidate(
     log_s = w_data * scale / (w_data + w_prior)
     sd = float(1.0 / np.sqrt(w_data + w_prior))
     in_range = np.log(cfg.search_min_scale) <= scale <= np.log(cfg.search_max_scale)
-    if not in_range or sd > cfg.max_uncertainty_ratio * sigma:
+    if not in_range or sd > min(cfg.max_uncertainty, cfg.max_uncertainty_ratio * sigma):
         why = (
             "outside the searched range"
             if not in_range
