@@ -14,7 +14,7 @@ from geofill.config import FillConfig, IntrinsicsConfig
 from geofill.focal import bougnoux_candidate, bougnoux_focals, estimate_focal
 from geofill.intrinsics import resolve_intrinsics
 from geofill.io import ExifCamera
-from geofill.matching import match_pair
+from geofill.matching import Matches, match_pair
 from geofill.pipeline import fill
 from geofill.pose import estimate_pose
 from geofill.synthetic import make_pair
@@ -161,6 +161,15 @@ def test_exif_prior_wins_by_default_is_refined_when_trusted_less_and_kept_when_c
     est = estimate_focal(m, wrong, wrong, cfg, thr)
     assert est.status == "prior" and est.K_target == wrong
     assert "contradicts the prior" in est.reason
+
+
+def test_failed_estimation_keeps_the_prior_with_the_reason():
+    rng = np.random.default_rng(0)
+    pts = rng.uniform(0.0, 400.0, (30, 2))
+    pts[3] = np.nan  # least squares refuses non-finite residuals
+    K0 = default_prior(640, 480)
+    est = estimate_focal(Matches(pts, pts + 5.0, rng.normal(size=(3, 3)), 30, 30, 30), K0, K0, CFG.intrinsics)
+    assert est.status == "prior" and est.K_target == K0 and "failed" in est.reason
 
 
 def test_estimation_off_keeps_the_prior():

@@ -188,11 +188,15 @@ def estimate_focal(
 
     candidates: list[FocalCandidate] = []
     profile = None
-    if cfg.estimate in ("search", "auto"):
-        cand, profile = search_focal(matches, K_t, K_s, free, sigma, cfg, threshold_px)
-        candidates.append(cand)
-    if cfg.estimate in ("bougnoux", "auto"):
-        candidates.append(bougnoux_candidate(matches, K_t, K_s, free, sigma, cfg))
+    try:
+        if cfg.estimate in ("search", "auto"):
+            cand, profile = search_focal(matches, K_t, K_s, free, sigma, cfg, threshold_px)
+            candidates.append(cand)
+        if cfg.estimate in ("bougnoux", "auto"):
+            candidates.append(bougnoux_candidate(matches, K_t, K_s, free, sigma, cfg))
+    except (ValueError, np.linalg.LinAlgError, cv2.error) as exc:
+        # A focal that cannot be estimated is no reason to give up the pair: keep the prior.
+        return keep("prior", f"focal estimation failed ({exc}); kept the prior", candidates, profile)
     ok = [c for c in candidates if c.ok]
     if not ok:
         return keep("prior", "; ".join(c.reason for c in candidates), candidates, profile)
