@@ -40,12 +40,13 @@ def test_outside_hole_is_byte_identical(pair, result):
     assert np.array_equal(result.image[~pair.hole], pair.target[~pair.hole])
 
 
-def test_report_has_stage_timings_and_geometry(result):
+def test_report_has_stage_timings_and_geometry(pair, result):
     r = result.report
-    for stage in ("check inputs", "match", "pose", "triangulate", "depth", "render", "composite"):
+    for stage in ("check inputs", "match", "focal", "pose", "triangulate", "depth", "render", "composite"):
         assert r.timings_s[stage] >= 0.0
     assert r.n_verified_matches >= r.n_pose_inliers >= r.n_triangulated > 50
-    assert r.intrinsics_target["origin"] == "default"
+    assert r.intrinsics_target["origin"] == "estimated"  # from the default prior, by the focal stage
+    assert r.intrinsics_target["fx_px"] == pytest.approx(pair.K_target[0, 0], rel=0.05)
     assert r.depth_fit["method"] == "identity"  # sparse depth is built in pose units
     assert '"hole_coverage"' in r.to_json()
 

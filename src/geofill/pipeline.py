@@ -19,8 +19,9 @@ from .camera import Intrinsics
 from .config import FillConfig
 from .depth import DepthContext, get_backend
 from .depth.align import AlignedDepth, align_depth
+from .focal import FocalEstimate, estimate_focal
 from .inpaint import inpaint_single
-from .intrinsics import HasFocal35, resolve_intrinsics
+from .intrinsics import ExifLens, resolve_intrinsics
 from .io import as_rgb_uint8, validate_pair
 from .matching import Matches, match_pair
 from .pose import PoseEstimate, estimate_pose
@@ -53,6 +54,7 @@ class FillReport:
     fallbacks: list[str] = field(default_factory=list)
     intrinsics_target: dict[str, Any] = field(default_factory=dict)
     intrinsics_source: dict[str, Any] = field(default_factory=dict)
+    focal: dict[str, Any] = field(default_factory=dict)  # focal stage: status, reason, candidates, profile
     working_size_target: tuple[int, int] = (0, 0)
     working_size_source: tuple[int, int] = (0, 0)
     pose_status: str = ""
@@ -83,6 +85,7 @@ class FillArtifacts:
 
     views: WorkingViews | None = None
     matches: Matches | None = None
+    focal: FocalEstimate | None = None
     pose: PoseEstimate | None = None
     points: TriangulatedPoints | None = None
     depth: AlignedDepth | None = None
@@ -115,8 +118,8 @@ def prepare(
     hole: np.ndarray,
     source: np.ndarray,
     cfg: FillConfig,
-    target_exif: HasFocal35 | None,
-    source_exif: HasFocal35 | None,
+    target_exif: ExifLens | None,
+    source_exif: ExifLens | None,
 ) -> WorkingViews:
     """Working-resolution float views and per-image intrinsics (resolved at input size, then resized)."""
     ic = cfg.intrinsics
@@ -170,8 +173,8 @@ def fill(
     source: np.ndarray,
     config: FillConfig | None = None,
     *,
-    target_exif: HasFocal35 | None = None,
-    source_exif: HasFocal35 | None = None,
+    target_exif: ExifLens | None = None,
+    source_exif: ExifLens | None = None,
     progress: Progress | None = None,
 ) -> FillResult:
     """Fill the hole ``mask`` (True/255 = hole) of ``target`` with content from ``source``.
@@ -230,6 +233,23 @@ def _reference_fill(target, hole, source, cfg, target_exif, source_exif, prog, r
         report.n_tentative_matches = matches.n_tentative
         report.n_verified_matches = len(matches)
         notes.append(f"{len(matches)} verified of {matches.n_tentative} tentative matches")
+
+    # --- Focal length (issue 7): estimated from the matches, before the pose uses it. ---
+    with prog.stage("focal") as notes:
+        focal = estimate_focal(
+            matches,
+            views.K_target,
+            views.K_source,
+            cfg.intrinsics,
+            cfg.matching.ransac_threshold_px * max(views.px_scale, 0.5),
+        )
+        art.focal = focal
+        views.K_target, views.K_source = focal.K_target, focal.K_source
+        report.focal = focal.to_json()
+        report.intrinsics_target = views.K_target.resized(target.shape[1], target.shape[0]).to_json()
+        report.intrinsics_source = views.K_source.resized(source.shape[1], source.shape[0]).to_json()
+        notes.append(focal.summary())
+    # --- end focal ---
 
     with prog.stage("pose") as notes:
         pose = estimate_pose(matches, views.K_target, views.K_source, cfg.geometry, cfg.matching)

@@ -33,14 +33,18 @@ class SparseDepth:
         )
         uv = ((pts.uv_source + 0.5) * [ws / w, hs / h] - 0.5).astype(np.float32)
         uv = np.clip(uv, 0, [ws - 1, hs - 1]).astype(np.float32)
-        inv = 1.0 / pts.depth
+        # SIFT puts several keypoints (orientations) on one spot, so the same point can come twice;
+        # the interpolator then reads uninitialised memory (run-to-run different depth, inf/NaN).
+        _, first = np.unique(uv, axis=0, return_index=True)
+        keep = np.sort(first)
+        uv, inv = uv[keep], 1.0 / pts.depth[keep]
         k = _VALUE_SCALE_PX / float(np.median(inv))
         to = uv + np.stack([inv * k, np.zeros_like(inv)], axis=1).astype(np.float32)
         interp = cv2.ximgproc.createEdgeAwareInterpolator()
         # FGS post-smoothing blurs across the affine fits and breaks planes (measured: mean error
         # 0.0003 -> 0.007 on an exact plane), so it is off.
         interp.setUsePostProcessing(False)
-        interp.setK(int(min(128, len(pts))))
+        interp.setK(int(min(128, len(uv))))
         flow = interp.interpolate(guide, uv, guide, to.astype(np.float32))
         inv_dense = cv2.resize(flow[..., 0] / k, (w, h), interpolation=cv2.INTER_LINEAR)
         inv_dense[~(inv_dense > 0)] = np.nan

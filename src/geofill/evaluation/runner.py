@@ -93,7 +93,11 @@ register_method("homography", _homography_method)
 
 #: geofill variants selectable by name: config overrides on top of the run's base config
 #: (``geofill eval --config/--set``). The paper's ablations are entries here.
-GEOFILL_VARIANTS: dict[str, dict[str, Any]] = {"geofill": {}}
+GEOFILL_VARIANTS: dict[str, dict[str, Any]] = {
+    "geofill": {},
+    # The paper's fixed focal (prior kept: flag, EXIF or 750 px at a 1280-px long side); issue 7.
+    "geofill_fixed_focal": {"intrinsics.estimate": "none"},
+}
 #: What ``--methods`` defaults to: the baselines and geofill as configured (variants by name).
 DEFAULT_METHODS = (*BASELINES, "geofill")
 
