@@ -24,11 +24,13 @@ import numpy as np
 from geofill.camera import Intrinsics
 from geofill.config import FillConfig
 from geofill.depth import DepthContext, get_backend
+from geofill.depth.onnx import resolve_model
 from geofill.evaluation.metrics import psnr
 from geofill.evaluation.runner import Pair, load_pairs, pair_mask
 from geofill.pipeline import fill
 from geofill.render import project_source_grid
 from geofill.synthetic import make_pair
+from geofill.weights import WeightsUnavailable
 
 PAIRS = Path(__file__).resolve().parents[2] / "shared" / "data" / "pairs"
 
@@ -114,14 +116,20 @@ def main() -> int:
     ap.add_argument("--synthetic", type=int, default=6, help="number of synthetic scenes (seeds 0..N-1)")
     ap.add_argument("--no-real", action="store_true", help="skip the real GT-depth pairs")
     ap.add_argument("--true-intrinsics", action="store_true", help="give the pipeline the GT intrinsics")
-    ap.add_argument("--backends", default="sparse,stereo", help="comma-separated depth backends")
+    ap.add_argument("--backends", default="sparse,stereo,onnx,fused", help="comma-separated depth backends")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="config override")
     args = ap.parse_args()
     from geofill.config import parse_overrides
 
     base = FillConfig().updated(parse_overrides(args.set))
     cases = synthetic_cases(args.synthetic) + ([] if args.no_real else real_cases())
-    backends = args.backends.split(",")
+    backends = []
+    for name in args.backends.split(","):
+        weights = resolve_model(base.depth) if name in ("onnx", "fused") else None
+        if isinstance(weights, WeightsUnavailable):
+            print(f"{name}: not measured: {weights}")
+        else:
+            backends.append(name)
     head = f"{'pair':<34s} {'backend':<8s} {'AbsRel':>7s} {'RMSlog':>7s} {'d<1.25':>7s}"
     head += f" | {'hAbsRel':>7s} {'hRMSlog':>7s} {'hd<1.25':>7s} {'n_hole':>7s} | {'PSNRh':>6s} {'conf':>5s}"
     print(head)

@@ -94,6 +94,8 @@ register_method("homography", _homography_method)
 #: geofill variants selectable by name: config overrides on top of the run's base config
 #: (``geofill eval --config/--set``). The paper's ablations are entries here.
 GEOFILL_VARIANTS: dict[str, dict[str, Any]] = {"geofill": {}}
+#: Depth backends (issue 4): the weight-free ones by name (``auto`` is ``geofill`` itself).
+GEOFILL_VARIANTS.update({f"geofill_{b}": {"depth.backend": b} for b in ("sparse", "stereo", "fused")})
 #: What ``--methods`` defaults to: the baselines and geofill as configured (variants by name).
 DEFAULT_METHODS = (*BASELINES, "geofill")
 
