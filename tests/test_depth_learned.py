@@ -120,7 +120,7 @@ def test_missing_weights_are_a_named_error(tmp_path):
 
 def _sweep(inv: np.ndarray, conf: np.ndarray) -> SweepResult:
     z = np.zeros_like(inv, np.float64)
-    return SweepResult(inv, conf, conf, Hypotheses(z, z + 1, 2), None)
+    return SweepResult(inv, conf, conf, Hypotheses(z, z + 1, 2), None, (0.0, 1.0))
 
 
 def test_fused_fit_recovers_affine_map_with_confidence_weights():

@@ -80,6 +80,7 @@ def test_hole_projecting_pixels_are_never_confident_but_completed(case):
     assert np.mean(sweep.confidence[hp] >= 0.5) < 0.01
     completed = complete(sweep, ctx)
     assert np.isfinite(completed).all()
+    assert sweep.bounds[0] <= completed.min() and completed.max() <= sweep.bounds[1]
     # edge-aware completion from the surroundings (measured median 5 %; the sweep's own WTA there ~30-90 %)
     assert np.median(rel_error(completed, sp)[hp]) < 0.12
 

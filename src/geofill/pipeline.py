@@ -264,10 +264,10 @@ def _reference_fill(target, hole, source, cfg, target_exif, source_exif, prog, r
             art.points = pts
             report.n_triangulated = len(pts)
             notes.append(f"{len(pts)} points kept of {pose.n_inliers}")
-        choice = choose_backend(cfg.depth, prog.say)
-        report.depth_backend, report.depth_choice = choice.name, choice.reason
-        prog.say(f"depth backend: {choice.reason}")
         with prog.stage("depth") as notes:
+            choice = choose_backend(cfg.depth, prog.say)  # may verify or download weights: timed
+            report.depth_backend, report.depth_choice = choice.name, choice.reason
+            prog.say(f"depth backend: {choice.reason}")
             depth = _dense_depth(views, pose, pts, source.shape[1::-1], cfg, choice.name)
             art.depth = depth
             report.depth_fit = {

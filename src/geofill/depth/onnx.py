@@ -12,6 +12,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import lru_cache
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -141,8 +142,6 @@ def _session(path: str, mtime_ns: int):
 
 def run_model(path: str, batch: np.ndarray) -> np.ndarray:
     """Run the ONNX model at ``path`` on ``batch``; its first input and first output are used."""
-    from pathlib import Path
-
     sess = _session(str(path), Path(path).stat().st_mtime_ns)
     name = sess.get_inputs()[0].name
     return sess.run([sess.get_outputs()[0].name], {name: batch})[0]

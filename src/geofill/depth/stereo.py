@@ -1,14 +1,18 @@
 """Weight-free dense depth: two-view plane-sweep stereo on the source view, then edge-aware completion.
 
 Sweep
-    Fronto-parallel planes of the source camera, uniform in inverse depth between bounds taken from
-    the triangulated points (widened), are mapped into the target through
+    Depth hypotheses of the source pixels, uniform in inverse depth between bounds taken from the
+    triangulated points (widened), are mapped into the target through
     :func:`geofill.render.project_source_points` (the renderer's own reprojection operator, so any
-    camera motion works: no rectification). At each plane the target's grey image is resampled
-    onto the source grid and compared with zero-mean normalised cross-correlation (NCC) over a
-    small window: NCC is invariant to gain and offset, so exposure changes between the two photos
-    do not bias the match. Target pixels in the hole (the object being removed) and outside the
-    image carry no evidence; windows that touch them are marked invalid.
+    camera motion works: no rectification). The hypotheses are fronto-parallel planes, except
+    where the whole range would move a pixel's match by more than the hypothesis budget (forward
+    motion, wide baselines): there each pixel sweeps a window of one-px steps around the inverse
+    depth interpolated from the triangulated points. At each hypothesis the target's grey image,
+    resized to the source's pixel footprint, is resampled onto the source grid and compared with
+    zero-mean normalised cross-correlation (NCC) over a small window: NCC is invariant to gain and
+    offset, so exposure changes between the two photos do not bias the match. Target pixels in
+    the hole (the object being removed) and outside the image carry no evidence; windows that
+    touch them are marked invalid.
 Aggregation
     Each cost slice is smoothed by a guided filter with the source image as guide (cost-volume
     filtering, Hosni et al. 2013): support follows image edges, so depth edges stay sharp.
@@ -51,10 +55,9 @@ _GF_EPS = 1e-3
 _PEAK_HALF_WIDTH = 2
 #: Occlusion test: a pixel farther than the nearest winner at its target pixel by this factor is hidden.
 _OCCLUSION_RATIO = 1.03
-#: Confident pixels are subsampled on a grid of this step (px) before seeding the completion: the
-#: interpolator's local affine fits then span a wider area, which steadies their extrapolation
-#: (measured on the GT-depth pairs: mean error on hole-projecting pixels 0.399 -> 0.370 from step 2
-#: to 4, 0.465 at 8) and it runs 4x faster.
+#: Confident pixels are subsampled on a grid of this step (px) before seeding the completion:
+#: as accurate as every second pixel on the GT-depth pairs (mean inverse-depth error on the
+#: hole-projecting pixels 0.37-0.41 vs 0.40; a step of 8: 0.47) and 4x faster.
 _SEED_STEP = 4
 
 
@@ -62,11 +65,12 @@ _SEED_STEP = 4
 class SweepResult:
     """Winner-take-all inverse depth of the source at the sweep's resolution, with its evidence."""
 
-    inv_depth: np.ndarray  # (h, w) float32, pose units; NaN where no valid plane
+    inv_depth: np.ndarray  # (h, w) float32 inverse depth of the winner, pose units
     confidence: np.ndarray  # (h, w) float32 in [0, 1]
     ncc: np.ndarray  # (h, w) float32 aggregated NCC of the winner
     hyp: Hypotheses
     K_source: Intrinsics  # source intrinsics at the sweep's resolution
+    bounds: tuple[float, float]  # inverse-depth range of the sweep (:func:`inverse_depth_bounds`)
 
 
 def _grey(image: np.ndarray) -> np.ndarray:
@@ -302,7 +306,7 @@ def plane_sweep(ctx: DepthContext) -> SweepResult:
     # Only winners that pass the other tests may hide others: a wrong winner must not veto a right one.
     occl = occluded_in_target(np.where(conf >= cfg.stereo_min_confidence, inv, np.nan), K_s, K_t, T, (ht, wt))
     conf[occl] = 0.0
-    return SweepResult(inv, conf.astype(np.float32), s1.astype(np.float32), hyp, K_s)
+    return SweepResult(inv, conf.astype(np.float32), s1.astype(np.float32), hyp, K_s, (lo, hi))
 
 
 class StereoDepth:
@@ -336,7 +340,10 @@ def sparse_prior(guide: np.ndarray, pts, source_shape: tuple[int, int]) -> np.nd
 
 def complete(sweep: SweepResult, ctx: DepthContext) -> np.ndarray:
     """Dense inverse depth at the sweep's resolution: confident sweep pixels (on a grid) and the
-    triangulated points seed an edge-aware interpolation guided by the source."""
+    triangulated points seed an edge-aware interpolation guided by the source, kept inside the
+    sweep's range: the interpolator's affine fits, extrapolated far from their seeds, can run to
+    ~0 or negative inverse depth (measured: forward-motion street pairs; clamping gained +2.1 dB
+    hole PSNR on one, +0.13 dB mean over the 18 pairs, nothing on the synthetic scenes)."""
     h, w = sweep.inv_depth.shape
     conf_ok = (sweep.confidence >= ctx.cfg.stereo_min_confidence) & np.isfinite(sweep.inv_depth)
     grid = np.zeros_like(conf_ok)
@@ -347,4 +354,4 @@ def complete(sweep: SweepResult, ctx: DepthContext) -> np.ndarray:
     uv = np.concatenate([np.stack([xs, ys], axis=1), (pts.uv_source + 0.5) * [w / ws0, h / hs0] - 0.5])
     vals = np.concatenate([sweep.inv_depth[ys, xs], 1.0 / pts.depth])
     guide = cv2.resize(to_uint8(ctx.source), (w, h), interpolation=cv2.INTER_AREA)
-    return interpolate_edge_aware(guide, uv, vals)
+    return np.clip(interpolate_edge_aware(guide, uv, vals), *sweep.bounds)
