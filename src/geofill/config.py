@@ -116,7 +116,19 @@ class GeometryConfig:
 class DepthConfig:
     """Which depth backend gives the source's dense depth."""
 
-    backend: Literal["sparse", "file"] = "sparse"
+    #: ``auto``: ``fused`` when the learned model's weights resolve, else ``stereo`` (the reason is
+    #: printed and reported); ``stereo``: weight-free plane sweep + edge-aware completion;
+    #: ``onnx``: learned monocular network; ``fused``: learned depth fitted densely to stereo;
+    #: ``sparse``: triangulated points interpolated; ``file``: a user-supplied map.
+    backend: Literal["auto", "stereo", "fused", "onnx", "sparse", "file"] = "auto"
+    #: ``onnx``/``fused``: which network (Depth Anything V2 Small is Apache-2.0; DPT-Hybrid is the
+    #: paper's; MiDaS v2.1 small is the fastest).
+    model: Literal["depth-anything-v2-small", "dpt-hybrid", "midas-v2.1-small"] = "depth-anything-v2-small"
+    #: ``onnx``/``fused``: explicit ONNX file of ``model``; wins over its environment variable, the
+    #: cache and the hub (CLI ``--depth-model``).
+    model_path: str | None = None
+    #: Allow downloading missing weights from the hub (``HF_HUB_OFFLINE=1`` forbids it too).
+    download: bool = True
     #: ``file`` backend: path of a .npy / 16-bit PNG / TIFF / EXR map the size of the source.
     file_path: str | None = None
     #: ``file`` backend: what the values are.
@@ -127,6 +139,17 @@ class DepthConfig:
     file_metric: bool = False
     #: ``sparse`` backend: working long side (px) of the edge-aware interpolation.
     sparse_max_side: int = 640
+    #: ``stereo``: long side (px) of the plane sweep and of its completion.
+    stereo_max_side: int = 448
+    #: ``stereo``: most depth hypotheses (planes uniform in inverse depth); fewer are used when the
+    #: sweep's displacement range is shorter (about one plane per pixel of displacement).
+    stereo_max_planes: int = 96
+    #: ``stereo``: side (px at the sweep's resolution) of the NCC window.
+    stereo_patch_px: int = 7
+    #: ``stereo``: radius (px) of the guided filter that aggregates each cost slice; 0 = off.
+    stereo_aggregation_radius: int = 8
+    #: ``stereo``: pixels under this confidence (0-1) are re-estimated by edge-aware completion.
+    stereo_min_confidence: float = 0.5
 
 
 @dataclass

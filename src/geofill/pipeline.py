@@ -17,7 +17,7 @@ import numpy as np
 
 from .camera import Intrinsics
 from .config import FillConfig
-from .depth import DepthContext, get_backend
+from .depth import DepthContext, choose_backend, get_backend
 from .depth.align import AlignedDepth, align_depth
 from .focal import FocalEstimate, estimate_focal
 from .inpaint import inpaint_single
@@ -67,6 +67,7 @@ class FillReport:
     n_pose_inliers: int = 0
     n_triangulated: int = 0
     depth_backend: str = ""
+    depth_choice: str = ""  # which depth backend ran and why (``auto`` says what it found)
     depth_fit: dict[str, Any] = field(default_factory=dict)
     hole_pixels: int = 0
     hole_coverage: float = 0.0  # fraction of hole pixels the rendered source supplies
@@ -284,9 +285,11 @@ def _reference_fill(target, hole, source, cfg, target_exif, source_exif, prog, r
             report.n_triangulated = len(pts)
             notes.append(f"{len(pts)} points kept of {pose.n_inliers}")
         with prog.stage("depth") as notes:
-            depth = _dense_depth(views, pose, pts, source.shape[1::-1], cfg)
+            choice = choose_backend(cfg.depth, prog.say)  # may verify or download weights: timed
+            report.depth_backend, report.depth_choice = choice.name, choice.reason
+            prog.say(f"depth backend: {choice.reason}")
+            depth = _dense_depth(views, pose, pts, source.shape[1::-1], cfg, choice.name)
             art.depth = depth
-            report.depth_backend = cfg.depth.backend
             report.depth_fit = {
                 "scale": depth.scale,
                 "offset": depth.offset,
@@ -297,7 +300,7 @@ def _reference_fill(target, hole, source, cfg, target_exif, source_exif, prog, r
                 "negative_fraction": depth.negative_fraction,
             }
             notes.append(
-                f"{cfg.depth.backend}: scale {depth.scale:.4g}, offset {depth.offset:.4g} "
+                f"{choice.name}: scale {depth.scale:.4g}, offset {depth.offset:.4g} "
                 f"({depth.space} space, {depth.method}, {depth.n_points} points)"
             )
         depth_s = depth.depth
@@ -324,8 +327,8 @@ def _reference_fill(target, hole, source, cfg, target_exif, source_exif, prog, r
     return warped, rendered.alpha
 
 
-def _dense_depth(views, pose, pts, source_size, cfg) -> AlignedDepth:
-    """Run the configured depth backend and align it to the triangulated points."""
+def _dense_depth(views, pose, pts, source_size, cfg, backend: str) -> AlignedDepth:
+    """Run depth backend ``backend`` and align it to the triangulated points."""
     ctx = DepthContext(
         views.source,
         views.target,
@@ -338,7 +341,7 @@ def _dense_depth(views, pose, pts, source_size, cfg) -> AlignedDepth:
         cfg.depth,
     )
     try:
-        pred = get_backend(cfg.depth.backend).predict(ctx)
+        pred = get_backend(backend).predict(ctx)
         return align_depth(pred, pts, cfg.geometry)
     except ValueError as exc:
         raise Fallback(f"depth stage failed: {exc}") from exc

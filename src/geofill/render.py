@@ -120,13 +120,15 @@ def _raster_mesh(px, py, pz, su, sv, tri_a, tri_b, near, x0, y0, x1, y1, zbuf, m
                 )  # fmt: skip
 
 
-def project_source_grid(depth: np.ndarray, K_s: Intrinsics, K_t: Intrinsics, T: np.ndarray):
-    """Target pixel coordinates (x, y) and target z of every source pixel centre (float64 arrays)."""
-    h, w = depth.shape
-    jj, ii = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
-    z = depth.astype(np.float64)
-    X = (jj - K_s.cx) / K_s.fx * z
-    Y = (ii - K_s.cy) / K_s.fy * z
+def project_source_points(
+    x: np.ndarray, y: np.ndarray, depth: np.ndarray | float, K_s: Intrinsics, K_t: Intrinsics, T: np.ndarray
+):
+    """Target pixel coordinates (u, v) and target z of source pixels (``x``, ``y``) at source depth
+    ``depth`` (pose units; arrays broadcast). The one reprojection operator of geofill: the renderer,
+    the plane-sweep stereo and the pose-depth optimisation all map source pixels through it."""
+    z = np.asarray(depth, dtype=np.float64)
+    X = (x - K_s.cx) / K_s.fx * z
+    Y = (y - K_s.cy) / K_s.fy * z
     R, t = T[:3, :3], T[:3, 3]
     Xt = R[0, 0] * X + R[0, 1] * Y + R[0, 2] * z + t[0]
     Yt = R[1, 0] * X + R[1, 1] * Y + R[1, 2] * z + t[1]
@@ -135,6 +137,17 @@ def project_source_grid(depth: np.ndarray, K_s: Intrinsics, K_t: Intrinsics, T: 
         u = K_t.fx * Xt / Zt + K_t.cx
         v = K_t.fy * Yt / Zt + K_t.cy
     return u, v, Zt
+
+
+def source_pixel_grid(h: int, w: int) -> tuple[np.ndarray, np.ndarray]:
+    """(x, y) float64 coordinates of every pixel centre of an ``h`` x ``w`` image."""
+    return np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+
+
+def project_source_grid(depth: np.ndarray, K_s: Intrinsics, K_t: Intrinsics, T: np.ndarray):
+    """Target pixel coordinates (x, y) and target z of every source pixel centre (float64 arrays)."""
+    x, y = source_pixel_grid(*depth.shape)
+    return project_source_points(x, y, depth, K_s, K_t, T)
 
 
 def render_mesh(
@@ -156,7 +169,7 @@ def render_mesh(
     u, v, z = project_source_grid(depth_s, K_s, K_t, T)
     tri_a, tri_b = triangle_masks(depth_s, edge_threshold)
     hs, ws = depth_s.shape
-    su, sv = np.meshgrid(np.arange(ws, dtype=np.float64), np.arange(hs, dtype=np.float64))
+    su, sv = source_pixel_grid(hs, ws)
     finite_z = z[np.isfinite(z)]
     near = 1e-6 * (float(np.median(np.abs(finite_z))) if finite_z.size else 1.0)
     z = np.where(np.isfinite(z), z, -1.0)

@@ -98,6 +98,8 @@ GEOFILL_VARIANTS: dict[str, dict[str, Any]] = {
     # The paper's fixed focal (prior kept: flag, EXIF or 750 px at a 1280-px long side); issue 7.
     "geofill_fixed_focal": {"intrinsics.estimate": "none"},
 }
+#: Depth backends (issue 4): the weight-free ones by name (``auto`` is ``geofill`` itself).
+GEOFILL_VARIANTS.update({f"geofill_{b}": {"depth.backend": b} for b in ("sparse", "stereo", "fused")})
 #: What ``--methods`` defaults to: the baselines and geofill as configured (variants by name).
 DEFAULT_METHODS = (*BASELINES, "geofill")
 
