@@ -73,14 +73,14 @@ SECTIONS = [
     Section(
         "refine_eval",
         "Refinement ablation on the real pairs (`geofill eval`, issue 6)",
-        "The render pasted as is (`no-refine`), residual flow only (`flow`), colour only (`colour`: smooth "
+        "The render pasted as is (`no_refine`), residual flow only (`flow`), colour only (`colour`: smooth "
         "gain, no flow), and each colour model with the flow (`global` gain+offset, `poisson`); `geofill` is "
         "the default (smooth gain + flow). Each method runs the whole pipeline, so earlier stages may differ "
         "between rows where they are not deterministic; the next section compares on identical renders.",
         _eval(
             "{out}",
             "--methods",
-            "homography,geofill,geofill:no-refine,geofill:flow,geofill:colour,geofill:global,geofill:poisson",
+            "homography,geofill,geofill_no_refine,geofill_flow,geofill_colour,geofill_global,geofill_poisson",
         ),
         "summary.md",
     ),

@@ -53,7 +53,10 @@ def test_fill_writes_output_and_debug(files, tmp_path, capsys):
     report = json.loads((dbg / "report.json").read_text())
     assert report["status"] == "reference"
     assert report["n_pose_inliers"] > 50 and len(report["pose_source_to_target"]) == 4
-    assert report["intrinsics_target"]["fx_px"] == pytest.approx(750 * 320 / 1280)
+    # The focal used is the default prior (750 px at a 1280-px long side) times the focal stage's scale.
+    focal = report["focal"]
+    assert focal["prior_origin_target"] == "default" and focal["status"] in ("estimated", "prior")
+    assert report["intrinsics_target"]["fx_px"] == pytest.approx(750 * 320 / 1280 * focal["scale_target"])
     assert set(report["timings_s"]) >= {"match", "pose", "depth", "render"}
     assert report["config"]["render"]["edge_threshold"] == 0.04
 

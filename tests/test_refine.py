@@ -11,9 +11,9 @@ import pytest
 
 from geofill.camera import Intrinsics
 from geofill.config import FillConfig, InpaintConfig, RefineConfig
-from geofill.errors import ConfigError
+from geofill.errors import InpaintModelError
 from geofill.evaluation.metrics import psnr
-from geofill.inpaint import LAMA_ENV_VAR, get_inpainter, inpaint_single
+from geofill.inpaint import LAMA_WEIGHTS, get_inpainter, inpaint_single
 from geofill.lama import crop_window
 from geofill.membrane import membrane_fill
 from geofill.merge import blend_map, merge_fill
@@ -273,23 +273,38 @@ def test_lama_wrapper_crops_resizes_and_pastes_only_in_the_hole(tmp_path, four_c
 
 
 def test_auto_inpainting_falls_back_to_telea_and_says_why(monkeypatch, tmp_path):
-    monkeypatch.delenv(LAMA_ENV_VAR, raising=False)
-    inp = get_inpainter(InpaintConfig(method="auto"))
-    assert inp.name == "telea" and "no LaMa model" in inp.description
-    with pytest.raises(ConfigError, match="lama"):
+    monkeypatch.setenv("GEOFILL_CACHE", str(tmp_path / "cache"))
+    inp = get_inpainter(InpaintConfig(method="auto"))  # conftest: offline, nothing cached
+    assert inp.name == "telea" and "LaMa (ONNX) weights not available" in inp.description
+    assert "HF_HUB_OFFLINE" in inp.description
+    with pytest.raises(InpaintModelError, match="not available"):
         get_inpainter(InpaintConfig(method="lama"))
-    path = tmp_path / "tiny.onnx"
-    _tiny_lama(path)
-    monkeypatch.setenv(LAMA_ENV_VAR, str(path))
+    model = tmp_path / "tiny.onnx"
+    _tiny_lama(model)
+    monkeypatch.setenv(LAMA_WEIGHTS.env_var, str(model))
     assert get_inpainter(InpaintConfig(method="auto")).name == "lama"
     broken = tmp_path / "broken.onnx"
     broken.write_bytes(b"not a model")
-    inp = get_inpainter(InpaintConfig(method="auto", lama_model=str(broken)))
+    monkeypatch.setenv(LAMA_WEIGHTS.env_var, str(broken))
+    inp = get_inpainter(InpaintConfig(method="auto"))
     assert inp.name == "telea" and "could not be loaded" in inp.description
+    with pytest.raises(InpaintModelError, match="could not be loaded"):  # asked for explicitly
+        get_inpainter(InpaintConfig(method="auto", lama_model=str(broken)))
 
 
-def test_pipeline_reports_refinement_and_the_inpainter(pair, monkeypatch):
-    monkeypatch.delenv(LAMA_ENV_VAR, raising=False)
+def test_lama_model_resolves_from_the_cache(monkeypatch, tmp_path):
+    """The same resolution as the depth networks: a model already in geofill's cache is used."""
+    monkeypatch.setenv("GEOFILL_CACHE", str(tmp_path))
+    monkeypatch.delenv(LAMA_WEIGHTS.env_var, raising=False)
+    cached = LAMA_WEIGHTS.cache_path(tmp_path)
+    cached.parent.mkdir(parents=True)
+    _tiny_lama(cached)
+    inp = get_inpainter(InpaintConfig(method="auto"))
+    assert inp.name == "lama" and "from cache" in inp.description and str(cached) in inp.description
+
+
+def test_pipeline_reports_refinement_and_the_inpainter(pair, monkeypatch, tmp_path):
+    monkeypatch.setenv("GEOFILL_CACHE", str(tmp_path))
     res = fill(pair.target, pair.hole, pair.source)
     r = res.report
     assert r.inpaint_method.startswith("telea (auto:")

@@ -21,6 +21,7 @@ def _config_from_args(args: argparse.Namespace) -> FillConfig:
         "depth_file": "depth.file_path",
         "depth_kind": "depth.file_kind",
         "depth_scale": "depth.file_scale",
+        "depth_model": "depth.model_path",
         "focal": "intrinsics.focal_px",
         "target_intrinsics": "intrinsics.target",
         "source_intrinsics": "intrinsics.source",
@@ -55,7 +56,14 @@ def _add_config_flags(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--set", action="append", metavar="KEY=VALUE", help="override a config key, e.g. depth.backend=file"
     )
-    p.add_argument("--depth", choices=["sparse", "file"], help="depth backend (default: sparse)")
+    p.add_argument(
+        "--depth",
+        choices=["auto", "stereo", "fused", "onnx", "sparse", "file"],
+        help="depth backend (default: auto = fused when learned-depth weights resolve, else stereo)",
+    )
+    p.add_argument(
+        "--depth-model", metavar="PATH", help="ONNX file of the learned depth model (depth.model) to use"
+    )
     p.add_argument("--depth-file", help="depth/disparity map of the SOURCE (.npy, 16-bit PNG, TIFF, EXR)")
     p.add_argument(
         "--depth-kind", choices=["depth", "inverse_depth", "disparity"], help="what --depth-file holds"

@@ -26,8 +26,49 @@ class IntrinsicsConfig:
     target: list[float] | None = None
     #: Full calibration [fx, fy, cx, cy] (px of the input source image); wins over everything.
     source: list[float] | None = None
-    #: Use EXIF FocalLengthIn35mmFilm when present.
+    #: Use the EXIF focal length when present: FocalLengthIn35mmFilm, else FocalLength with the
+    #: focal-plane resolution (see :mod:`geofill.intrinsics`).
     use_exif: bool = True
+    #: Focal-length estimation from the pair, after matching and before the pose (see
+    #: :mod:`geofill.focal`): ``none`` keeps the prior (flag, EXIF or default: the paper's setting);
+    #: ``search`` profiles the robust Sampson cost of the best essential matrix over a focal scale
+    #: (default: best on the GT-pose pairs and synthetic scenes, benchmarks/focal_bench.py);
+    #: ``bougnoux`` is the closed form from F; ``auto`` combines the two. Focal lengths given by a
+    #: flag are never estimated; an EXIF focal is a prior the estimate may move within its uncertainty.
+    estimate: Literal["none", "search", "bougnoux", "auto"] = "search"
+    #: Prior 1-sigma of log(focal) for the default focal guess (1.0: a factor of e either way).
+    prior_sigma_default: float = 1.0
+    #: Prior 1-sigma of log(focal) for an EXIF focal (phones' EXIF is usually right to a few %).
+    #: Below ``model_error``, so by default the pair cannot move an EXIF focal: the estimate checks
+    #: it (report) and takes over only where EXIF is absent, or trusted less than this.
+    prior_sigma_exif: float = 0.05
+    #: Focal scales (relative to the prior) searched: log grid from ``search_min_scale`` to
+    #: ``search_max_scale`` with ``search_steps`` points, then refined around the best.
+    search_min_scale: float = 0.33
+    search_max_scale: float = 3.0
+    search_steps: int = 13
+    #: The search reads its Sampson cost as a Gaussian likelihood of the focal with the information
+    #: divided by this: SIFT positions carry correlated errors (localisation bias), so the formal
+    #: likelihood is overconfident (25: the standard deviation x5).
+    search_variance_inflation: float = 25.0
+    #: Relative focal error (1 sigma) the pair can never beat: what lens distortion, an off-centre
+    #: principal point or a rolling shutter leave. Estimates on the GT pairs were 0-16 % off where
+    #: more than 70 matches (benchmarks/focal_bench.py).
+    model_error: float = 0.1
+    #: Matches used by the search at most (evenly subsampled, for speed).
+    search_max_matches: int = 2000
+    #: The estimate is used only if its uncertainty (1-sigma of log focal) is at most this and at
+    #: most ``max_uncertainty_ratio`` times the prior's; otherwise the focal is unobservable from
+    #: this pair (e.g. parallel optical axes: stereo, pure sideways or forward motion; few matches)
+    #: and the prior is kept, with the reason in the report. 0.25 turned away the two estimates
+    #: that were 32 % off or unverifiable on the DEV pairs (+-44 %, +-32 %).
+    max_uncertainty: float = 0.25
+    max_uncertainty_ratio: float = 0.7
+    #: A pair whose best focal is further than this many standard deviations from the prior
+    #: contradicts it: the prior is kept (an EXIF focal wins over an estimate it rules out).
+    max_prior_conflict: float = 3.0
+    #: ``bougnoux``: bootstrap resamples of the matches that measure the formula's sensitivity.
+    bougnoux_resamples: int = 32
 
 
 @dataclass
@@ -75,7 +116,19 @@ class GeometryConfig:
 class DepthConfig:
     """Which depth backend gives the source's dense depth."""
 
-    backend: Literal["sparse", "file"] = "sparse"
+    #: ``auto``: ``fused`` when the learned model's weights resolve, else ``stereo`` (the reason is
+    #: printed and reported); ``stereo``: weight-free plane sweep + edge-aware completion;
+    #: ``onnx``: learned monocular network; ``fused``: learned depth fitted densely to stereo;
+    #: ``sparse``: triangulated points interpolated; ``file``: a user-supplied map.
+    backend: Literal["auto", "stereo", "fused", "onnx", "sparse", "file"] = "auto"
+    #: ``onnx``/``fused``: which network (Depth Anything V2 Small is Apache-2.0; DPT-Hybrid is the
+    #: paper's; MiDaS v2.1 small is the fastest).
+    model: Literal["depth-anything-v2-small", "dpt-hybrid", "midas-v2.1-small"] = "depth-anything-v2-small"
+    #: ``onnx``/``fused``: explicit ONNX file of ``model``; wins over its environment variable, the
+    #: cache and the hub (CLI ``--depth-model``).
+    model_path: str | None = None
+    #: Allow downloading missing weights from the hub (``HF_HUB_OFFLINE=1`` forbids it too).
+    download: bool = True
     #: ``file`` backend: path of a .npy / 16-bit PNG / TIFF / EXR map the size of the source.
     file_path: str | None = None
     #: ``file`` backend: what the values are.
@@ -86,6 +139,17 @@ class DepthConfig:
     file_metric: bool = False
     #: ``sparse`` backend: working long side (px) of the edge-aware interpolation.
     sparse_max_side: int = 640
+    #: ``stereo``: long side (px) of the plane sweep and of its completion.
+    stereo_max_side: int = 448
+    #: ``stereo``: most depth hypotheses (planes uniform in inverse depth); fewer are used when the
+    #: sweep's displacement range is shorter (about one plane per pixel of displacement).
+    stereo_max_planes: int = 96
+    #: ``stereo``: side (px at the sweep's resolution) of the NCC window.
+    stereo_patch_px: int = 7
+    #: ``stereo``: radius (px) of the guided filter that aggregates each cost slice; 0 = off.
+    stereo_aggregation_radius: int = 8
+    #: ``stereo``: pixels under this confidence (0-1) are re-estimated by edge-aware completion.
+    stereo_min_confidence: float = 0.5
 
 
 @dataclass
@@ -140,13 +204,16 @@ class RefineConfig:
 class InpaintConfig:
     """Single-image inpainting for what the source cannot supply."""
 
-    #: "telea"/"ns": OpenCV (no weights); "lama": LaMa through ONNX Runtime (needs ``lama_model``
-    #: or $GEOFILL_LAMA_MODEL); "auto": LaMa when its model resolves, else Telea (reported).
+    #: "telea"/"ns": OpenCV (no weights); "lama": LaMa through ONNX Runtime; "auto": LaMa when its
+    #: model resolves (path, $GEOFILL_LAMA_MODEL, cache, hub), else Telea (the reason is reported).
     method: Literal["telea", "ns", "lama", "auto"] = "auto"
     #: OpenCV inpainting neighbourhood radius (px).
     radius_px: float = 5.0
-    #: Path of a LaMa ONNX model (e.g. Carve/LaMa-ONNX's lama_fp32.onnx); None: $GEOFILL_LAMA_MODEL.
+    #: Explicit LaMa ONNX file (e.g. Carve/LaMa-ONNX's lama_fp32.onnx); wins over the environment
+    #: variable, the cache and the hub.
     lama_model: str | None = None
+    #: Allow downloading the LaMa model from the hub (``HF_HUB_OFFLINE=1`` forbids it too).
+    download: bool = True
 
 
 @dataclass

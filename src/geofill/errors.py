@@ -56,6 +56,14 @@ class DepthFileError(InputError):
     """A user-supplied depth map is missing, unreadable or inconsistent with the source."""
 
 
+class DepthModelError(InputError):
+    """A learned depth model that was asked for cannot be used (weights missing, unreadable, corrupt)."""
+
+
+class InpaintModelError(InputError):
+    """A LaMa inpainting model that was asked for cannot be used (weights missing, unreadable, corrupt)."""
+
+
 class ConfigError(GeoFillError):
     """A configuration value or file is invalid."""
 

@@ -1,13 +1,14 @@
 """Single-image inpainting for hole pixels the source cannot supply (and whole holes on fallback).
 
-``telea``/``ns``: OpenCV's fast-marching and Navier-Stokes inpainting (no weights; the default when
-no LaMa model is found). ``lama``: LaMa through ONNX Runtime (:mod:`geofill.lama`), which needs a
-model file; ``auto``: LaMa when its model resolves, else Telea, and the report says which and why.
+``telea``/``ns``: OpenCV's fast-marching and Navier-Stokes inpainting (no weights). ``lama``: LaMa
+through ONNX Runtime (:mod:`geofill.lama`), whose model is resolved like the depth networks'
+(:func:`geofill.weights.resolve_weights`: ``inpaint.lama_model`` -> ``$GEOFILL_LAMA_MODEL`` -> cache
+-> hub download unless ``inpaint.download`` is off or ``HF_HUB_OFFLINE`` is set); ``auto`` (default):
+LaMa when its model resolves, else Telea, and the report says which and why.
 """
 
 from __future__ import annotations
 
-import os
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -16,11 +17,21 @@ import cv2
 import numpy as np
 
 from .config import InpaintConfig
-from .errors import ConfigError
+from .errors import InpaintModelError
+from .weights import ResolvedWeights, WeightsSpec, WeightsUnavailable, resolve_weights
 
 _METHODS = {"telea": cv2.INPAINT_TELEA, "ns": cv2.INPAINT_NS}
-#: Environment variable holding the path of a LaMa ONNX model (after ``inpaint.lama_model``).
-LAMA_ENV_VAR = "GEOFILL_LAMA_MODEL"
+#: Carve/LaMa-ONNX (Apache-2.0, like LaMa): big-LaMa exported with a fixed 512 x 512 input, inputs
+#: ``image`` (1, 3, 512, 512) RGB in [0, 1] and ``mask`` (1, 1, 512, 512), 1 = hole. Pinned to the
+#: repository's commit c3c0c9e; no checksum is published, so the file is used unverified (said so).
+LAMA_WEIGHTS = WeightsSpec(
+    name="LaMa (ONNX)",
+    repo_id="Carve/LaMa-ONNX",
+    filename="lama_fp32.onnx",
+    revision="c3c0c9e468934d62e79c329e35d82dd09ff8c444",
+    env_var="GEOFILL_LAMA_MODEL",
+    license="Apache-2.0",
+)
 #: Loaded LaMa sessions by resolved path: loading a 200 MB model costs seconds, every fill reuses it.
 _LAMA_CACHE: dict[Path, Callable[[np.ndarray, np.ndarray], np.ndarray]] = {}
 
@@ -35,16 +46,11 @@ class Inpainter:
     run: Callable[[np.ndarray, np.ndarray], np.ndarray]
 
 
-def resolve_lama_model(cfg: InpaintConfig) -> Path | str:
-    """The LaMa model file: ``cfg.lama_model``, then ``$GEOFILL_LAMA_MODEL``; or why there is none."""
-    for where, given in (
-        ("inpaint.lama_model", cfg.lama_model),
-        (f"${LAMA_ENV_VAR}", os.environ.get(LAMA_ENV_VAR)),
-    ):
-        if given:
-            path = Path(given).expanduser()
-            return path if path.is_file() else f"{where} {path} is not a file"
-    return f"no LaMa model given (inpaint.lama_model or ${LAMA_ENV_VAR}; geofill ships no weights)"
+def resolve_lama_model(
+    cfg: InpaintConfig, say: Callable[[str], None] | None = None
+) -> ResolvedWeights | WeightsUnavailable:
+    """The LaMa model file (see the module docstring for the order), or why there is none."""
+    return resolve_weights(LAMA_WEIGHTS, cfg.lama_model, allow_download=cfg.download, say=say)
 
 
 def _opencv(method: str, radius_px: float) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
@@ -66,7 +72,7 @@ def _opencv(method: str, radius_px: float) -> Callable[[np.ndarray, np.ndarray],
 
 
 def _lama(path: Path) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
-    key = path.resolve()
+    key = Path(path).resolve()
     if key not in _LAMA_CACHE:
         from .lama import LamaOnnx
 
@@ -74,22 +80,23 @@ def _lama(path: Path) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
     return _LAMA_CACHE[key]
 
 
-def get_inpainter(cfg: InpaintConfig) -> Inpainter:
-    """The inpainter ``cfg`` asks for. ``lama`` without a usable model is a :class:`ConfigError`;
-    ``auto`` then falls back to Telea and says so."""
+def get_inpainter(cfg: InpaintConfig, say: Callable[[str], None] | None = None) -> Inpainter:
+    """The inpainter ``cfg`` asks for. ``lama``, or an explicit ``cfg.lama_model``, that cannot be
+    used is an :class:`InpaintModelError`; ``auto`` otherwise falls back to Telea and says why."""
     if cfg.method in _METHODS:
         return Inpainter(cfg.method, cfg.method, _opencv(cfg.method, cfg.radius_px))
-    found = resolve_lama_model(cfg)
-    problem = found if isinstance(found, str) else None
-    if problem is None:
+    weights = resolve_lama_model(cfg, say)
+    if isinstance(weights, WeightsUnavailable):
+        problem = str(weights)
+    else:
         try:
-            return Inpainter("lama", f"lama ({found})", _lama(found))
+            return Inpainter("lama", f"lama ({weights.describe()})", _lama(weights.path))
         except Exception as exc:  # onnxruntime raises its own types for unreadable/invalid models
-            problem = f"LaMa model {found} could not be loaded: {type(exc).__name__}: {exc}".replace(
+            problem = f"{weights.describe()} could not be loaded: {type(exc).__name__}: {exc}".replace(
                 "\n", " "
             )
-    if cfg.method == "lama":
-        raise ConfigError(f"inpaint.method is 'lama' but {problem}")
+    if cfg.method == "lama" or cfg.lama_model:
+        raise InpaintModelError(problem)
     return Inpainter("telea", f"telea (auto: {problem})", _opencv("telea", cfg.radius_px))
 
 

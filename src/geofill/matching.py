@@ -33,7 +33,7 @@ class Matches:
     F: np.ndarray | None
     n_keypoints_target: int
     n_keypoints_source: int
-    n_tentative: int  # after ratio + mutual tests, before geometric verification
+    n_tentative: int  # after ratio + mutual tests and de-duplication, before geometric verification
 
     def __len__(self) -> int:
         return int(self.pts_target.shape[0])
@@ -100,6 +100,11 @@ def match_pair(
     pts_s, desc_s = detect_sift(gray_s, cfg.max_features)
     pairs = mutual_ratio_matches(desc_t, desc_s, cfg.ratio, cfg.mutual)
     mt, ms = pts_t[pairs[:, 0]], pts_s[pairs[:, 1]]
+    # SIFT emits one keypoint per dominant orientation, so a location can appear 2-3 times (25% of
+    # the apple video's keypoints): identical matches would be counted twice by the robust fits.
+    _, first = np.unique(np.concatenate([mt, ms], axis=1), axis=0, return_index=True)
+    first.sort()
+    mt, ms = mt[first], ms[first]
     F = None
     if len(pairs) >= MIN_MATCHES_FOR_F:
         F, inl = cv2.findFundamentalMat(
@@ -117,4 +122,4 @@ def match_pair(
         mt, ms = mt[keep], ms[keep]
     else:
         mt, ms = mt[:0], ms[:0]
-    return Matches(mt, ms, F, len(pts_t), len(pts_s), len(pairs))
+    return Matches(mt, ms, F, len(pts_t), len(pts_s), len(first))

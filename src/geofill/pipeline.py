@@ -17,10 +17,11 @@ import numpy as np
 
 from .camera import Intrinsics
 from .config import FillConfig
-from .depth import DepthContext, get_backend
+from .depth import DepthContext, choose_backend, get_backend
 from .depth.align import AlignedDepth, align_depth
+from .focal import FocalEstimate, estimate_focal
 from .inpaint import get_inpainter
-from .intrinsics import HasFocal35, resolve_intrinsics
+from .intrinsics import ExifLens, resolve_intrinsics
 from .io import as_rgb_uint8, validate_pair
 from .matching import Matches, match_pair
 from .merge import merge_fill
@@ -55,6 +56,7 @@ class FillReport:
     fallbacks: list[str] = field(default_factory=list)
     intrinsics_target: dict[str, Any] = field(default_factory=dict)
     intrinsics_source: dict[str, Any] = field(default_factory=dict)
+    focal: dict[str, Any] = field(default_factory=dict)  # focal stage: status, reason, candidates, profile
     working_size_target: tuple[int, int] = (0, 0)
     working_size_source: tuple[int, int] = (0, 0)
     pose_status: str = ""
@@ -67,6 +69,7 @@ class FillReport:
     n_pose_inliers: int = 0
     n_triangulated: int = 0
     depth_backend: str = ""
+    depth_choice: str = ""  # which depth backend ran and why (``auto`` says what it found)
     depth_fit: dict[str, Any] = field(default_factory=dict)
     hole_pixels: int = 0
     hole_coverage: float = 0.0  # fraction of hole pixels the rendered source supplies
@@ -87,6 +90,7 @@ class FillArtifacts:
 
     views: WorkingViews | None = None
     matches: Matches | None = None
+    focal: FocalEstimate | None = None
     pose: PoseEstimate | None = None
     points: TriangulatedPoints | None = None
     depth: AlignedDepth | None = None
@@ -120,8 +124,8 @@ def prepare(
     hole: np.ndarray,
     source: np.ndarray,
     cfg: FillConfig,
-    target_exif: HasFocal35 | None,
-    source_exif: HasFocal35 | None,
+    target_exif: ExifLens | None,
+    source_exif: ExifLens | None,
 ) -> WorkingViews:
     """Working-resolution float views and per-image intrinsics (resolved at input size, then resized)."""
     ic = cfg.intrinsics
@@ -169,8 +173,8 @@ def fill(
     source: np.ndarray,
     config: FillConfig | None = None,
     *,
-    target_exif: HasFocal35 | None = None,
-    source_exif: HasFocal35 | None = None,
+    target_exif: ExifLens | None = None,
+    source_exif: ExifLens | None = None,
     progress: Progress | None = None,
 ) -> FillResult:
     """Fill the hole ``mask`` (True/255 = hole) of ``target`` with content from ``source``.
@@ -206,7 +210,7 @@ def fill(
         prog.say(f"falling back to single-image inpainting: {exc}")
         warped, alpha = None, None
     with prog.stage("composite") as notes:
-        report.inpaint_method = get_inpainter(cfg.inpaint).description
+        report.inpaint_method = get_inpainter(cfg.inpaint, prog.say).description
         notes.append(f"single-image inpainting: {report.inpaint_method}")
         image = composite(target, hole, warped, alpha, cfg)
     report.timings_s = dict(prog.timings)
@@ -231,6 +235,23 @@ def _reference_fill(target, hole, source, cfg, target_exif, source_exif, prog, r
         report.n_tentative_matches = matches.n_tentative
         report.n_verified_matches = len(matches)
         notes.append(f"{len(matches)} verified of {matches.n_tentative} tentative matches")
+
+    # --- Focal length (issue 7): estimated from the matches, before the pose uses it. ---
+    with prog.stage("focal") as notes:
+        focal = estimate_focal(
+            matches,
+            views.K_target,
+            views.K_source,
+            cfg.intrinsics,
+            cfg.matching.ransac_threshold_px * max(views.px_scale, 0.5),
+        )
+        art.focal = focal
+        views.K_target, views.K_source = focal.K_target, focal.K_source
+        report.focal = focal.to_json()
+        report.intrinsics_target = views.K_target.resized(target.shape[1], target.shape[0]).to_json()
+        report.intrinsics_source = views.K_source.resized(source.shape[1], source.shape[0]).to_json()
+        notes.append(focal.summary())
+    # --- end focal ---
 
     with prog.stage("pose") as notes:
         pose = estimate_pose(matches, views.K_target, views.K_source, cfg.geometry, cfg.matching)
@@ -265,9 +286,11 @@ def _reference_fill(target, hole, source, cfg, target_exif, source_exif, prog, r
             report.n_triangulated = len(pts)
             notes.append(f"{len(pts)} points kept of {pose.n_inliers}")
         with prog.stage("depth") as notes:
-            depth = _dense_depth(views, pose, pts, source.shape[1::-1], cfg)
+            choice = choose_backend(cfg.depth, prog.say)  # may verify or download weights: timed
+            report.depth_backend, report.depth_choice = choice.name, choice.reason
+            prog.say(f"depth backend: {choice.reason}")
+            depth = _dense_depth(views, pose, pts, source.shape[1::-1], cfg, choice.name)
             art.depth = depth
-            report.depth_backend = cfg.depth.backend
             report.depth_fit = {
                 "scale": depth.scale,
                 "offset": depth.offset,
@@ -278,7 +301,7 @@ def _reference_fill(target, hole, source, cfg, target_exif, source_exif, prog, r
                 "negative_fraction": depth.negative_fraction,
             }
             notes.append(
-                f"{cfg.depth.backend}: scale {depth.scale:.4g}, offset {depth.offset:.4g} "
+                f"{choice.name}: scale {depth.scale:.4g}, offset {depth.offset:.4g} "
                 f"({depth.space} space, {depth.method}, {depth.n_points} points)"
             )
         depth_s = depth.depth
@@ -316,8 +339,8 @@ def _reference_fill(target, hole, source, cfg, target_exif, source_exif, prog, r
     return refined.image, refined.alpha
 
 
-def _dense_depth(views, pose, pts, source_size, cfg) -> AlignedDepth:
-    """Run the configured depth backend and align it to the triangulated points."""
+def _dense_depth(views, pose, pts, source_size, cfg, backend: str) -> AlignedDepth:
+    """Run depth backend ``backend`` and align it to the triangulated points."""
     ctx = DepthContext(
         views.source,
         views.target,
@@ -330,7 +353,7 @@ def _dense_depth(views, pose, pts, source_size, cfg) -> AlignedDepth:
         cfg.depth,
     )
     try:
-        pred = get_backend(cfg.depth.backend).predict(ctx)
+        pred = get_backend(backend).predict(ctx)
         return align_depth(pred, pts, cfg.geometry)
     except ValueError as exc:
         raise Fallback(f"depth stage failed: {exc}") from exc

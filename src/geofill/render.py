@@ -113,69 +113,42 @@ def _raster_triangle(
                 my[y - y0, x - x0] = (w0 * av * iza + w1 * bv * izb + w2 * cv * izc) * z
 
 
-@njit(cache=True, inline="always")
-def _edge_ok(a, b, threshold):
-    # Same test as footprint_ok; a NaN depth compares False and cuts the edge.
-    return 2.0 * abs(a - b) / (a + b) <= threshold
-
-
-@njit(cache=True, inline="always")
-def _project(depth, i, j, ks, rt, kt):
-    """Target (x, y, z) of source pixel centre (row i, column j); z = -1 without a valid depth."""
-    d = depth[i, j]
-    if not d > 0.0:  # NaN, zero or negative: no surface
-        return 0.0, 0.0, -1.0
-    X = (j - ks[2]) / ks[0] * d
-    Y = (i - ks[3]) / ks[1] * d
-    Xt = rt[0, 0] * X + rt[0, 1] * Y + rt[0, 2] * d + rt[0, 3]
-    Yt = rt[1, 0] * X + rt[1, 1] * Y + rt[1, 2] * d + rt[1, 3]
-    Zt = rt[2, 0] * X + rt[2, 1] * Y + rt[2, 2] * d + rt[2, 3]
-    if Zt == 0.0:
-        return 0.0, 0.0, -1.0
-    return kt[0] * Xt / Zt + kt[2], kt[1] * Yt / Zt + kt[3], Zt
-
-
 @njit(cache=True)
-def _raster_mesh(depth, ks, rt, kt, threshold, near, x0, y0, x1, y1, zbuf, mx, my):
-    """Rasterise every surviving grid triangle. Vertices are projected on the fly (float64 in
-    registers) rather than into full-size arrays: at 4K those arrays alone would cost ~0.8 GB."""
-    hs, ws = depth.shape
+def _raster_mesh(pu, pv, pz, tri_a, tri_b, near, x0, y0, x1, y1, zbuf, mx, my):
+    """Rasterise every surviving triangle of the source grid; vertex (i, j) projects to
+    (pu, pv, pz)[i, j] (float32, widened to float64 here) and has texture coordinate (j, i)."""
+    hs, ws = pu.shape
     for i in range(hs - 1):
         for j in range(ws - 1):
-            da, db, dc, dd = depth[i, j], depth[i, j + 1], depth[i + 1, j], depth[i + 1, j + 1]
-            # Quad corners a=(i, j), b=(i, j+1), c=(i+1, j), d=(i+1, j+1): see triangle_masks.
-            diag = _edge_ok(db, dc, threshold)
-            ta = diag and _edge_ok(da, db, threshold) and _edge_ok(da, dc, threshold)
-            tb = diag and _edge_ok(db, dd, threshold) and _edge_ok(dc, dd, threshold)
+            ta = tri_a[i, j] and pz[i, j] > near and pz[i, j + 1] > near and pz[i + 1, j] > near
+            tb = tri_b[i, j] and pz[i, j + 1] > near and pz[i + 1, j + 1] > near and pz[i + 1, j] > near
             if not (ta or tb):
                 continue
-            bx, by, bz = _project(depth, i, j + 1, ks, rt, kt)
-            cx, cy, cz = _project(depth, i + 1, j, ks, rt, kt)
-            if bz <= near or cz <= near:
-                continue
+            bx, by, bz = float(pu[i, j + 1]), float(pv[i, j + 1]), float(pz[i, j + 1])
+            cx, cy, cz = float(pu[i + 1, j]), float(pv[i + 1, j]), float(pz[i + 1, j])
             if ta:
-                ax, ay, az = _project(depth, i, j, ks, rt, kt)
-                if az > near:
-                    _raster_triangle(
-                        ax, ay, az, j, i, bx, by, bz, j + 1, i, cx, cy, cz, j, i + 1,
-                        x0, y0, x1, y1, zbuf, mx, my,
-                    )  # fmt: skip
+                ax, ay, az = float(pu[i, j]), float(pv[i, j]), float(pz[i, j])
+                _raster_triangle(
+                    ax, ay, az, float(j), float(i), bx, by, bz, float(j + 1), float(i),
+                    cx, cy, cz, float(j), float(i + 1), x0, y0, x1, y1, zbuf, mx, my,
+                )  # fmt: skip
             if tb:
-                ex, ey, ez = _project(depth, i + 1, j + 1, ks, rt, kt)
-                if ez > near:
-                    _raster_triangle(
-                        bx, by, bz, j + 1, i, ex, ey, ez, j + 1, i + 1, cx, cy, cz, j, i + 1,
-                        x0, y0, x1, y1, zbuf, mx, my,
-                    )  # fmt: skip
+                dx, dy, dz = float(pu[i + 1, j + 1]), float(pv[i + 1, j + 1]), float(pz[i + 1, j + 1])
+                _raster_triangle(
+                    bx, by, bz, float(j + 1), float(i), dx, dy, dz, float(j + 1), float(i + 1),
+                    cx, cy, cz, float(j), float(i + 1), x0, y0, x1, y1, zbuf, mx, my,
+                )  # fmt: skip
 
 
-def project_source_grid(depth: np.ndarray, K_s: Intrinsics, K_t: Intrinsics, T: np.ndarray):
-    """Target pixel coordinates (x, y) and target z of every source pixel centre (float64 arrays)."""
-    h, w = depth.shape
-    jj, ii = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
-    z = depth.astype(np.float64)
-    X = (jj - K_s.cx) / K_s.fx * z
-    Y = (ii - K_s.cy) / K_s.fy * z
+def project_source_points(
+    x: np.ndarray, y: np.ndarray, depth: np.ndarray | float, K_s: Intrinsics, K_t: Intrinsics, T: np.ndarray
+):
+    """Target pixel coordinates (u, v) and target z of source pixels (``x``, ``y``) at source depth
+    ``depth`` (pose units; arrays broadcast). The one reprojection operator of geofill: the renderer,
+    the plane-sweep stereo and the pose-depth optimisation all map source pixels through it."""
+    z = np.asarray(depth, dtype=np.float64)
+    X = (x - K_s.cx) / K_s.fx * z
+    Y = (y - K_s.cy) / K_s.fy * z
     R, t = T[:3, :3], T[:3, 3]
     Xt = R[0, 0] * X + R[0, 1] * Y + R[0, 2] * z + t[0]
     Yt = R[1, 0] * X + R[1, 1] * Y + R[1, 2] * z + t[1]
@@ -184,6 +157,38 @@ def project_source_grid(depth: np.ndarray, K_s: Intrinsics, K_t: Intrinsics, T: 
         u = K_t.fx * Xt / Zt + K_t.cx
         v = K_t.fy * Yt / Zt + K_t.cy
     return u, v, Zt
+
+
+def source_pixel_grid(h: int, w: int) -> tuple[np.ndarray, np.ndarray]:
+    """(x, y) float64 coordinates of every pixel centre of an ``h`` x ``w`` image."""
+    return np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+
+
+def project_source_grid(depth: np.ndarray, K_s: Intrinsics, K_t: Intrinsics, T: np.ndarray):
+    """Target pixel coordinates (x, y) and target z of every source pixel centre (float64 arrays)."""
+    x, y = source_pixel_grid(*depth.shape)
+    return project_source_points(x, y, depth, K_s, K_t, T)
+
+
+#: Source rows projected per chunk: bounds the float64 temporaries of the projection (at 4K,
+#: whole-image float64 arrays would take ~0.8 GB).
+_PROJECT_ROWS = 256
+
+
+def _project_grid_f32(depth: np.ndarray, K_s: Intrinsics, K_t: Intrinsics, T: np.ndarray):
+    """:func:`project_source_grid` in row chunks, stored as float32 (u, v; z = -1 where invalid)."""
+    h, w = depth.shape
+    u, v, z = (np.empty((h, w), np.float32) for _ in range(3))
+    x = np.arange(w, dtype=np.float64)[None, :]
+    for r0 in range(0, h, _PROJECT_ROWS):
+        r1 = min(r0 + _PROJECT_ROWS, h)
+        y = np.arange(r0, r1, dtype=np.float64)[:, None]
+        cu, cv, cz = project_source_points(x, y, depth[r0:r1], K_s, K_t, T)
+        valid = np.isfinite(cz) & np.isfinite(cu) & np.isfinite(cv)
+        u[r0:r1] = np.where(valid, cu, 0.0)
+        v[r0:r1] = np.where(valid, cv, 0.0)
+        z[r0:r1] = np.where(valid, cz, -1.0)
+    return u, v, z
 
 
 def render_mesh(
@@ -204,22 +209,18 @@ def render_mesh(
     H, W = K_t.height, K_t.width
     x0, y0, x1, y1 = roi if roi is not None else (0, 0, W, H)
     x0, y0, x1, y1 = max(int(x0), 0), max(int(y0), 0), min(int(x1), W), min(int(y1), H)
-    depth = np.ascontiguousarray(depth_s, dtype=np.float32)
-    # Cull vertices at (or behind) the target camera plane; the scale comes from the source depth
-    # (a strided sample: the median only sets an order of magnitude).
-    finite = depth[:: max(1, depth.shape[0] // 256), :: max(1, depth.shape[1] // 256)]
-    finite = finite[np.isfinite(finite) & (finite > 0)]
-    near = 1e-6 * (float(np.median(finite)) if finite.size else 1.0)
-    ks = np.array([K_s.fx, K_s.fy, K_s.cx, K_s.cy], np.float64)
-    kt = np.array([K_t.fx, K_t.fy, K_t.cx, K_t.cy], np.float64)
+    u, v, z = _project_grid_f32(depth_s, K_s, K_t, T)
+    tri_a, tri_b = triangle_masks(depth_s, edge_threshold)
+    # Vertices at (or behind) the target camera plane are culled; a strided sample of z sets the
+    # scale (the median only gives an order of magnitude).
+    sample = z[:: max(1, z.shape[0] // 256), :: max(1, z.shape[1] // 256)]
+    sample = np.abs(sample[sample != -1.0])
+    near = 1e-6 * (float(np.median(sample)) if sample.size else 1.0)
     # Full-size float32 buffers; the kernel writes through views of the ROI (no second copy).
     zbuf = np.full((H, W), np.inf, np.float32)
     mx = np.full((H, W), -1.0, np.float32)
     my = np.full((H, W), -1.0, np.float32)
     if x1 > x0 and y1 > y0:
         win = (slice(y0, y1), slice(x0, x1))
-        rt = np.asarray(T, np.float64)[:3]
-        _raster_mesh(
-            depth, ks, rt, kt, float(edge_threshold), near, x0, y0, x1, y1, zbuf[win], mx[win], my[win]
-        )
+        _raster_mesh(u, v, z, tri_a, tri_b, near, x0, y0, x1, y1, zbuf[win], mx[win], my[win])
     return RenderResult(mx, my, zbuf, np.isfinite(zbuf), (x0, y0, x1, y1))

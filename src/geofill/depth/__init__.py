@@ -8,6 +8,7 @@ in the units of the pose translation.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Literal, Protocol
 
@@ -60,14 +61,57 @@ class DepthBackend(Protocol):
 
 
 def get_backend(name: str) -> DepthBackend:
-    """The backend registered under ``name`` (see :data:`geofill.config.DepthConfig.backend`)."""
+    """The backend registered under ``name`` (see :data:`geofill.config.DepthConfig.backend`;
+    ``auto`` is resolved by :func:`choose_backend` first)."""
     from .file import FileDepth
+    from .fused import FusedDepth
+    from .onnx import OnnxDepth
     from .sparse import SparseDepth
+    from .stereo import StereoDepth
 
-    backends: dict[str, type] = {"file": FileDepth, "sparse": SparseDepth}
+    backends: dict[str, type] = {
+        "file": FileDepth,
+        "sparse": SparseDepth,
+        "stereo": StereoDepth,
+        "onnx": OnnxDepth,
+        "fused": FusedDepth,
+    }
     if name not in backends:
         raise ValueError(f"unknown depth backend {name!r}; known: {sorted(backends)}")
     return backends[name]()
 
 
-__all__ = ["DepthBackend", "DepthContext", "DepthPrediction", "get_backend"]
+@dataclass(frozen=True)
+class BackendChoice:
+    """The backend that runs and why (one line for the user and the report)."""
+
+    name: str
+    reason: str
+
+
+def choose_backend(cfg: DepthConfig, say: Callable[[str], None] | None = None) -> BackendChoice:
+    """Resolve ``auto``: ``fused`` when the learned model's weights resolve (path, environment
+    variable, cache or download), else ``stereo``, with the reason. An explicit
+    ``cfg.model_path`` that is not a file is an error, not a fallback. Other backends as given."""
+    if cfg.backend != "auto":
+        return BackendChoice(cfg.backend, f"{cfg.backend} (configured)")
+    from ..errors import DepthModelError
+    from ..weights import WeightsUnavailable
+    from .onnx import resolve_model
+
+    weights = resolve_model(cfg, say)
+    if isinstance(weights, WeightsUnavailable):
+        if cfg.model_path:
+            raise DepthModelError(str(weights))
+        return BackendChoice("stereo", f"stereo (auto: {weights})")
+    return BackendChoice("fused", f"fused (auto: learned depth {weights.describe()})")
+
+
+__all__ = [
+    "BackendChoice",
+    "DepthBackend",
+    "DepthContext",
+    "DepthPrediction",
+    "choose_backend",
+    "get_backend",
+]

@@ -45,19 +45,23 @@ def sample_at(values: np.ndarray, uv: np.ndarray) -> np.ndarray:
     return map_coordinates(values.astype(np.float64), [uv[:, 1], uv[:, 0]], order=1, mode="nearest")
 
 
-def fit_affine(x: np.ndarray, y: np.ndarray, robust: bool, scale_only: bool = False) -> tuple[float, float]:
-    """Least-squares ``y ~ s x + b`` (``b = 0`` when ``scale_only``); Huber IRLS when ``robust``."""
+def fit_affine(
+    x: np.ndarray, y: np.ndarray, robust: bool, scale_only: bool = False, weights: np.ndarray | None = None
+) -> tuple[float, float]:
+    """Least-squares ``y ~ s x + b`` (``b = 0`` when ``scale_only``); Huber IRLS when ``robust``;
+    each sample weighted by ``weights`` (>= 0) when given."""
+    sw = np.ones_like(x) if weights is None else np.sqrt(np.asarray(weights, dtype=np.float64))
     A = np.stack([x, np.zeros_like(x) if scale_only else np.ones_like(x)], axis=1)
-    (s, b), *_ = np.linalg.lstsq(A, y, rcond=None)
+    (s, b), *_ = np.linalg.lstsq(A * sw[:, None], y * sw, rcond=None)
     if robust:
         r = y - (s * x + b)
         mad = 1.4826 * np.median(np.abs(r - np.median(r)))
         f_scale = max(mad, 1e-6 * max(np.abs(y).max(), 1e-12))
         if scale_only:
-            sol = least_squares(lambda p: p[0] * x - y, [s], loss="huber", f_scale=f_scale)
+            sol = least_squares(lambda p: sw * (p[0] * x - y), [s], loss="huber", f_scale=f_scale)
             s, b = sol.x[0], 0.0
         else:
-            sol = least_squares(lambda p: p[0] * x + p[1] - y, [s, b], loss="huber", f_scale=f_scale)
+            sol = least_squares(lambda p: sw * (p[0] * x + p[1] - y), [s, b], loss="huber", f_scale=f_scale)
             s, b = sol.x
     return float(s), float(b)
 

@@ -1,10 +1,5 @@
-"""Weight-free depth: dense source depth from the triangulated points by edge-aware interpolation.
-
-OpenCV's EdgeAwareInterpolator (EpicFlow, Revaud et al. 2015) interpolates sparse values with
-locally-affine fits over geodesic (edge-aware) neighbourhoods guided by the source image. We
-interpolate inverse depth, which is exactly affine in the image for planar surfaces, so a plane
-seen through enough points is reproduced exactly, and depth edges follow image edges.
-"""
+"""Weight-free depth: dense source depth from the triangulated points by edge-aware interpolation
+(:func:`geofill.depth.completion.interpolate_edge_aware` on inverse depth)."""
 
 from __future__ import annotations
 
@@ -12,10 +7,7 @@ import cv2
 import numpy as np
 
 from . import DepthContext, DepthPrediction
-
-#: The interpolator carries values as a displacement field; it is tuned for displacements of a few
-#: pixels, so values are rescaled to this median magnitude and back.
-_VALUE_SCALE_PX = 10.0
+from .completion import interpolate_edge_aware, to_uint8
 
 
 class SparseDepth:
@@ -28,20 +20,8 @@ class SparseDepth:
         h, w = ctx.source.shape[:2]
         s = min(1.0, ctx.cfg.sparse_max_side / max(h, w))
         ws, hs = max(round(w * s), 8), max(round(h * s), 8)
-        guide = cv2.resize(
-            np.clip(ctx.source * 255.0 + 0.5, 0, 255).astype(np.uint8), (ws, hs), cv2.INTER_AREA
-        )
-        uv = ((pts.uv_source + 0.5) * [ws / w, hs / h] - 0.5).astype(np.float32)
-        uv = np.clip(uv, 0, [ws - 1, hs - 1]).astype(np.float32)
-        inv = 1.0 / pts.depth
-        k = _VALUE_SCALE_PX / float(np.median(inv))
-        to = uv + np.stack([inv * k, np.zeros_like(inv)], axis=1).astype(np.float32)
-        interp = cv2.ximgproc.createEdgeAwareInterpolator()
-        # FGS post-smoothing blurs across the affine fits and breaks planes (measured: mean error
-        # 0.0003 -> 0.007 on an exact plane), so it is off.
-        interp.setUsePostProcessing(False)
-        interp.setK(int(min(128, len(pts))))
-        flow = interp.interpolate(guide, uv, guide, to.astype(np.float32))
-        inv_dense = cv2.resize(flow[..., 0] / k, (w, h), interpolation=cv2.INTER_LINEAR)
+        guide = cv2.resize(to_uint8(ctx.source), (ws, hs), interpolation=cv2.INTER_AREA)
+        uv = (pts.uv_source + 0.5) * [ws / w, hs / h] - 0.5
+        inv_dense = interpolate_edge_aware(guide, uv, 1.0 / pts.depth, out_size=(w, h))
         inv_dense[~(inv_dense > 0)] = np.nan
-        return DepthPrediction(inv_dense.astype(np.float32), "inverse", self.name, in_pose_units=True)
+        return DepthPrediction(inv_dense, "inverse", self.name, in_pose_units=True)

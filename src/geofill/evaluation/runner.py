@@ -95,16 +95,20 @@ register_method("homography", _homography_method)
 #: (``geofill eval --config/--set``). The paper's ablations are entries here.
 GEOFILL_VARIANTS: dict[str, dict[str, Any]] = {
     "geofill": {},
-    # Refinement ablations (issue 6): the render pasted as is; colour only; colour + residual flow;
-    # and each colour model with the flow on.
-    "geofill:no-refine": {"refine.colour": "none", "refine.flow": False, "refine.feather_px": 0.0},
-    "geofill:colour": {"refine.flow": False},
-    "geofill:colour+flow": {"refine.flow": True},
-    "geofill:flow": {"refine.colour": "none", "refine.flow": True},
-    "geofill:global": {"refine.colour": "global"},
-    "geofill:gain": {"refine.colour": "gain"},
-    "geofill:poisson": {"refine.colour": "poisson"},
+    # The paper's fixed focal (prior kept: flag, EXIF or 750 px at a 1280-px long side); issue 7.
+    "geofill_fixed_focal": {"intrinsics.estimate": "none"},
+    # Refinement and merge (issue 6): the render pasted as is; flow only; colour only; colour +
+    # residual flow (the default); and each colour model with the flow.
+    "geofill_no_refine": {"refine.colour": "none", "refine.flow": False, "refine.feather_px": 0.0},
+    "geofill_flow": {"refine.colour": "none", "refine.flow": True},
+    "geofill_colour": {"refine.flow": False},
+    "geofill_colour_flow": {"refine.flow": True},
+    "geofill_global": {"refine.colour": "global"},
+    "geofill_gain": {"refine.colour": "gain"},
+    "geofill_poisson": {"refine.colour": "poisson"},
 }
+#: Depth backends (issue 4): the weight-free ones by name (``auto`` is ``geofill`` itself).
+GEOFILL_VARIANTS.update({f"geofill_{b}": {"depth.backend": b} for b in ("sparse", "stereo", "fused")})
 #: What ``--methods`` defaults to: the baselines and geofill as configured (variants by name).
 DEFAULT_METHODS = (*BASELINES, "geofill")
 

@@ -1,0 +1,231 @@
+"""Focal-length estimation (issue 7): accuracy of each method, its effect on the pose and on the fill.
+
+    .venv/bin/python benchmarks/focal_bench.py [--pairs ../shared/data/pairs] [--seeds 3]
+                                               [--skip-synthetic] [--skip-psnr] [--eval-out DIR]
+
+1. Real pairs with ground-truth K (meta.json K_target): true focal, the default prior, each
+   method's estimate (intrinsics.estimate = none / search / bougnoux / auto) with its focal error,
+   and rotation / translation-direction errors of the pose computed with it (and with the true K)
+   on the pairs with a ground-truth pose (TUM's pose is itself estimated: focal only). Matches are
+   the pipeline's (working resolution, evaluation hole of seed 0 excluded).
+2. Rendered scenes (geofill.synthetic): orbits of 0.5 and 1 unit (4.8 / 9.5 deg of vergence),
+   landscape and portrait, true focal 0.5x / 1x / 2x the default, ``--seeds`` seeds each; and the
+   degenerate motions (sideways, forward, pure rotation), where the prior must be kept.
+3. Hole PSNR with ``geofill eval``'s masks (seed 0) on every pair for the fixed focal
+   (``geofill_fixed_focal`` = ``--set intrinsics.estimate=none``), the default config (estimated)
+   and, where meta.json has it, the true K given as calibration flags. With ``--eval-out`` the
+   first two run through ``geofill eval``'s runner itself (same numbers, plus its files).
+
+The optimiser's focal refinement (issue 5, ``optimize.refine_focal``) is not measured here.
+Timings are wall-clock on this machine. Figures, not a test.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from geofill.camera import Intrinsics, default_focal_px, pose_errors_deg
+from geofill.config import FillConfig
+from geofill.evaluation.metrics import psnr
+from geofill.evaluation.runner import load_pairs, pair_mask, run_eval
+from geofill.focal import estimate_focal
+from geofill.matching import match_pair
+from geofill.pipeline import fill, prepare
+from geofill.pose import estimate_pose
+from geofill.synthetic import make_pair
+
+METHODS = ("none", "search", "bougnoux", "auto")
+CFG = FillConfig()
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--pairs", default=str(Path(__file__).resolve().parents[2] / "shared" / "data" / "pairs"))
+    ap.add_argument("--seeds", type=int, default=3, help="synthetic seeds per configuration")
+    ap.add_argument("--skip-synthetic", action="store_true")
+    ap.add_argument("--skip-psnr", action="store_true", help="skip the hole-PSNR comparison (slow)")
+    ap.add_argument("--eval-out", help="run the fixed/estimated PSNR through geofill eval, writing it here")
+    args = ap.parse_args(argv)
+    pairs = load_pairs([args.pairs])
+    real_pairs(pairs)
+    if not args.skip_synthetic:
+        synthetic(args.seeds)
+    if not args.skip_psnr:
+        hole_psnr(pairs, args.eval_out)
+    return 0
+
+
+def _threshold(px_scale: float) -> float:
+    return CFG.matching.ransac_threshold_px * max(px_scale, 0.5)
+
+
+def _estimates(matches, K_t, K_s, px_scale):
+    """{method: (FocalEstimate, wall seconds, CPU seconds)}."""
+    out = {}
+    for method in METHODS:
+        ic = replace(CFG.intrinsics, estimate=method)
+        t0, c0 = time.perf_counter(), time.process_time()
+        est = estimate_focal(matches, K_t, K_s, ic, _threshold(px_scale))
+        out[method] = (est, time.perf_counter() - t0, time.process_time() - c0)
+    return out
+
+
+def real_pairs(pairs) -> None:
+    print("== Real pairs with ground-truth K (focal error of the target image; pose errors in deg)")
+    head = f"{'pair':<34s} {'f_true':>7s} {'prior':>7s}"
+    head += "".join(f" {m[:8]:>9s}" for m in METHODS[1:])
+    head += "".join(f" {'R/t ' + m[:6]:>13s}" for m in (*METHODS, "true K"))
+    head += f" {'t_search':>8s}"
+    print(head)
+    errs: dict[str, list[float]] = {m: [] for m in METHODS}
+    pose: dict[str, list[tuple[float, float]]] = {m: [] for m in (*METHODS, "true K")}
+    times, cpu = [], []
+    for pair in pairs:
+        if pair.meta.get("K_target") is None:
+            continue
+        hole = pair_mask(pair, 0)
+        target = pair.target.copy()
+        target[hole] = 0
+        views = prepare(target, hole, pair.source, CFG, None, None)
+        m = match_pair(views.target, views.source, views.hole, CFG.matching, views.px_scale)
+        gt_t = Intrinsics.from_matrix(np.array(pair.meta["K_target"]), *pair.target.shape[1::-1])
+        gt_s = Intrinsics.from_matrix(np.array(pair.meta["K_source"]), *pair.source.shape[1::-1])
+        gt_t = gt_t.resized(views.K_target.width, views.K_target.height)
+        gt_s = gt_s.resized(views.K_source.width, views.K_source.height)
+        est = _estimates(m, views.K_target, views.K_source, views.px_scale)
+        times.append(est["search"][1])
+        cpu.append(est["search"][2])
+        T_gt = pair.meta.get("T_source_to_target")
+        row = f"{pair.id:<34s} {gt_t.fx:7.0f} {views.K_target.fx:7.0f}"
+        for method in METHODS[1:]:
+            e = est[method][0]
+            mark = "" if e.status == "estimated" else "*"
+            row += f" {100 * (e.K_target.fx / gt_t.fx - 1):+8.1f}{mark or ' '}"
+        for method in METHODS:
+            errs[method].append(abs(est[method][0].K_target.fx / gt_t.fx - 1))
+        for method in (*METHODS, "true K"):
+            if T_gt is None:
+                row += f" {'-':>13s}"
+                continue
+            K_t, K_s = (
+                (gt_t, gt_s) if method == "true K" else (est[method][0].K_target, est[method][0].K_source)
+            )
+            p = estimate_pose(m, K_t, K_s, CFG.geometry, CFG.matching)
+            r, t = pose_errors_deg(p.T, np.array(T_gt))
+            pose[method].append((r, t))
+            row += f" {r:6.2f}/{t:6.2f}"
+        row += f" {est['search'][1]:8.3f}"
+        print(row, flush=True)
+    print("(* = prior kept: unobservable, failed or contradicted; focal error of the prior shown)")
+    line = "median |focal error|: " + ", ".join(
+        f"{m} {100 * statistics.median(errs[m]):.1f}%" for m in METHODS
+    )
+    print(line)
+    for method in (*METHODS, "true K"):
+        rs, ts = zip(*pose[method], strict=True)
+        print(
+            f"pose ({len(rs)} GT pairs) {method:<9s} median R {statistics.median(rs):.2f} deg, "
+            f"t {statistics.median(ts):.2f} deg; mean R {np.mean(rs):.2f}, t {np.mean(ts):.2f}"
+        )
+    print(
+        f"focal search time: wall median {statistics.median(times):.3f} s, max {max(times):.3f} s; "
+        f"CPU median {statistics.median(cpu):.3f} s, max {max(cpu):.3f} s\n"
+    )
+
+
+def _synthetic_case(width, height, focal_scale, motion, baseline, seed):
+    f0 = default_focal_px(width, height)
+    pair = make_pair(
+        seed=seed, width=width, height=height, focal_px=f0 * focal_scale, motion=motion, baseline=baseline
+    )
+    px_scale = max(width, height) / 1280
+    m = match_pair(pair.target / 255.0, pair.source / 255.0, pair.hole, CFG.matching, px_scale)
+    K0 = Intrinsics.from_focal(f0, width, height, "default", CFG.intrinsics.prior_sigma_default)
+    return pair, _estimates(m, K0, K0, px_scale)
+
+
+def synthetic(seeds: int) -> None:
+    print("== Rendered scenes, 640x480 and 480x640, true focal 0.5x / 1x / 2x the default")
+    groups = [
+        ("orbit 0.5 (4.8 deg)", "orbit", 0.5, (0.5, 1.0, 2.0)),
+        ("orbit 1.0 (9.5 deg)", "orbit", 1.0, (0.5, 1.0, 2.0)),
+        ("sideways", "sideways", None, (0.5, 2.0)),
+        ("forward", "forward", None, (0.5, 2.0)),
+        ("rotate (5 deg)", "rotate", None, (0.5, 2.0)),
+    ]
+    print(f"{'motion':<22s} {'method':<9s} {'n':>3s} {'estimated':>9s} {'|err| med':>9s} {'max':>7s} <5%")
+    for name, motion, baseline, scales in groups:
+        results = {m: [] for m in METHODS[1:]}
+        n_seeds = seeds if motion == "orbit" else 1
+        for size in ((640, 480), (480, 640)):
+            for fs in scales:
+                for seed in range(n_seeds):
+                    pair, est = _synthetic_case(*size, fs, motion, baseline, seed)
+                    for method in METHODS[1:]:
+                        e = est[method][0]
+                        err = e.K_target.fx / pair.K_target[0, 0] - 1
+                        results[method].append((e.status == "estimated", err))
+        for method, res in results.items():
+            done = [abs(err) for ok, err in res if ok]
+            med = f"{100 * statistics.median(done):8.1f}%" if done else f"{'-':>9s}"
+            mx = f"{100 * max(done):6.1f}%" if done else f"{'-':>7s}"
+            within = sum(abs(err) < 0.05 for _, err in res)
+            print(f"{name:<22s} {method:<9s} {len(res):3d} {len(done):9d} {med} {mx} {within:5d}", flush=True)
+    print("(estimated: focal moved; otherwise the prior was kept and its error counts in <5%)\n")
+
+
+def hole_psnr(pairs, out_dir: str | None) -> None:
+    """Hole PSNR with the evaluation's masks for the fixed focal, the estimate and (where meta.json
+    has it) the true K. With ``out_dir``, the first two come from ``geofill eval``'s own runner."""
+    print("== Hole PSNR (geofill eval protocol, seed 0): fixed focal, estimated (default), true K")
+    fixed_cfg = CFG.updated({"intrinsics.estimate": "none"})
+    scores: dict[str, dict[str, float]] = {}
+    if out_dir:
+        for r in run_eval(pairs, ["geofill_fixed_focal", "geofill"], out_dir, contact_sheets=False):
+            scores.setdefault(r.pair, {})[r.method] = r.psnr_hole if r.psnr_hole is not None else float("nan")
+    print(f"{'pair':<34s} {'fixed':>7s} {'estim.':>7s} {'delta':>7s} {'true K':>7s} {'delta':>7s}")
+    deltas, deltas_true = [], []
+    for pair in pairs:
+        hole = pair_mask(pair, 0)
+        target = pair.target.copy()
+        target[hole] = 0
+        v = scores.setdefault(pair.id, {})
+        if "geofill" not in v:
+            v["geofill_fixed_focal"] = psnr(
+                fill(target, hole, pair.source, fixed_cfg).image, pair.target, hole
+            )
+            v["geofill"] = psnr(fill(target, hole, pair.source, CFG).image, pair.target, hole)
+        d = v["geofill"] - v["geofill_fixed_focal"]
+        deltas.append(d)
+        line = f"{pair.id:<34s} {v['geofill_fixed_focal']:7.2f} {v['geofill']:7.2f} {d:+7.2f}"
+        if pair.meta.get("K_target") is not None:
+            K_t, K_s = (np.array(pair.meta[k]) for k in ("K_target", "K_source"))
+            true_cfg = CFG.updated(
+                {
+                    "intrinsics.target": [K_t[0, 0], K_t[1, 1], K_t[0, 2], K_t[1, 2]],
+                    "intrinsics.source": [K_s[0, 0], K_s[1, 1], K_s[0, 2], K_s[1, 2]],
+                }
+            )
+            p_true = psnr(fill(target, hole, pair.source, true_cfg).image, pair.target, hole)
+            deltas_true.append(p_true - v["geofill_fixed_focal"])
+            line += f" {p_true:7.2f} {deltas_true[-1]:+7.2f}"
+        print(line + ("  <-- estimate worse by > 0.3 dB" if d < -0.3 else ""), flush=True)
+    fixed = [v["geofill_fixed_focal"] for v in scores.values()]
+    estim = [v["geofill"] for v in scores.values()]
+    print(
+        f"mean {np.mean(fixed):.2f} -> {np.mean(estim):.2f} dB, median {np.median(fixed):.2f} -> "
+        f"{np.median(estim):.2f} dB; estimate worse by > 0.3 dB on {sum(d < -0.3 for d in deltas)}/"
+        f"{len(deltas)} pairs; true K worse than the fixed focal by > 0.3 dB on "
+        f"{sum(d < -0.3 for d in deltas_true)}/{len(deltas_true)} pairs"
+    )
+
+
+if __name__ == "__main__":
+    sys.exit(main())
