@@ -209,11 +209,12 @@ class InpaintConfig:
     method: Literal["telea", "ns", "lama", "auto"] = "auto"
     #: OpenCV inpainting neighbourhood radius (px).
     radius_px: float = 5.0
-    #: Explicit LaMa ONNX file (e.g. Carve/LaMa-ONNX's lama_fp32.onnx); wins over the environment
+    #: Explicit LaMa ONNX file (e.g. Carve/LaMa-ONNX's lama.onnx); wins over the environment
     #: variable, the cache and the hub.
     lama_model: str | None = None
-    #: Allow downloading the LaMa model from the hub (``HF_HUB_OFFLINE=1`` forbids it too).
-    download: bool = True
+    #: Allow downloading the LaMa model from the hub (``HF_HUB_OFFLINE=1`` forbids it too). Off by
+    #: default: no checksum is published for it, so a 207 MB unverifiable download is opt-in.
+    download: bool = False
 
 
 @dataclass

@@ -3,7 +3,7 @@
 ``telea``/``ns``: OpenCV's fast-marching and Navier-Stokes inpainting (no weights). ``lama``: LaMa
 through ONNX Runtime (:mod:`geofill.lama`), whose model is resolved like the depth networks'
 (:func:`geofill.weights.resolve_weights`: ``inpaint.lama_model`` -> ``$GEOFILL_LAMA_MODEL`` -> cache
--> hub download unless ``inpaint.download`` is off or ``HF_HUB_OFFLINE`` is set); ``auto`` (default):
+-> hub download only when ``inpaint.download`` is on and ``HF_HUB_OFFLINE`` unset); ``auto`` (default):
 LaMa when its model resolves, else Telea, and the report says which and why.
 """
 
@@ -24,10 +24,12 @@ _METHODS = {"telea": cv2.INPAINT_TELEA, "ns": cv2.INPAINT_NS}
 #: Carve/LaMa-ONNX (Apache-2.0, like LaMa): big-LaMa exported with a fixed 512 x 512 input, inputs
 #: ``image`` (1, 3, 512, 512) RGB in [0, 1] and ``mask`` (1, 1, 512, 512), 1 = hole. Pinned to the
 #: repository's commit c3c0c9e; no checksum is published, so the file is used unverified (said so).
+# lama.onnx, not lama_fp32.onnx: the hub's scanner marks the latter "Suspicious" on that commit and
+# the former "Safe". Neither has a published checksum, so it is used unverified (and reported so).
 LAMA_WEIGHTS = WeightsSpec(
     name="LaMa (ONNX)",
     repo_id="Carve/LaMa-ONNX",
-    filename="lama_fp32.onnx",
+    filename="lama.onnx",
     revision="c3c0c9e468934d62e79c329e35d82dd09ff8c444",
     env_var="GEOFILL_LAMA_MODEL",
     license="Apache-2.0",
