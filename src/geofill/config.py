@@ -147,7 +147,7 @@ class OptimizeConfig:
     #: (max-filtered by ``fast_margin_px``) is at least this fraction of its maximum; 0 = all pixels.
     fast_min_weight: float = 1e-3
     #: ``fast`` solver: margin (px at each level) around the weighted area kept in that set.
-    fast_margin_px: int = 3
+    fast_margin_px: int = 1
     #: torch intra-op threads while optimising (restored afterwards). The work is many small
     #: memory-bound operations: 2 threads were 13x slower than 1 with the 2 cores shared by other jobs.
     threads: int = 1
@@ -155,7 +155,7 @@ class OptimizeConfig:
     refine_focal: bool = False
     #: Weak prior on the log focal scale phi: ``w * l0 * phi^2`` with l0 the initial objective, so a
     #: focal change by a factor e costs ``w`` times the initial objective.
-    focal_prior_weight: float = 1.0
+    focal_prior_weight: float = 0.01
 
 
 @dataclass

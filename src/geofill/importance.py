@@ -62,16 +62,20 @@ def edge_maps(
     high_percentile: float,
     low_ratio: float,
 ) -> list[np.ndarray]:
-    """One dilated Canny edge map (bool) per blur kernel size, with no edge inside the hole."""
+    """One dilated Canny edge map (bool) per blur kernel size; no edge starts in the hole or on its
+    border (before the dilation)."""
     gray = to_gray_u8(target)
     known = ~hole
+    # Sobel reaches one pixel across the hole border, where a kernel too small to bridge it leaves
+    # the step between known pixels and the hole.
+    no_edge = cv2.dilate(hole.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
     kernel = np.ones((dilation_px, dilation_px), np.uint8) if dilation_px > 1 else None
     maps = []
     for ksize in blur_kernels:
         blurred = np.clip(masked_blur(gray, known, ksize) + 0.5, 0, 255).astype(np.uint8)
         low, high = canny_thresholds(blurred, known, high_percentile, low_ratio)
         edges = cv2.Canny(blurred, low, high, L2gradient=True)
-        edges[hole] = 0
+        edges[no_edge] = 0
         if kernel is not None:
             edges = cv2.dilate(edges, kernel)
         maps.append(edges > 0)

@@ -71,8 +71,8 @@ _FAR_PX = 1e6
 #: Levenberg-Marquardt damping: start, bounds and the factors applied on rejection / acceptance.
 _LM_MU0, _LM_MU_MIN, _LM_MU_MAX = 1e-4, 1e-9, 1e6
 _LM_UP, _LM_DOWN = 8.0, 4.0
-#: Points used to measure how far a step moves the reprojection (its 95th percentile).
-_MOTION_SAMPLES = 4096
+#: Photometric points (an even subsample) that the fast solver's curvature and step length use.
+_CURVATURE_SAMPLES = 1 << 16
 
 
 # ---------------------------------------------------------------------------------------------
@@ -346,6 +346,8 @@ def _resize_views(target, hole, source, values, K_t, K_s, pts_t, pts_s, max_side
 
 def _bilinear_np(image: np.ndarray, pts: np.ndarray) -> np.ndarray:
     """Bilinear samples of a float32 (H, W) map at (N, 2) pixel positions; NaN when a tap is NaN."""
+    if len(pts) == 0:
+        return np.zeros(0, np.float32)
     out = cv2.remap(
         image,
         pts[:, 0].astype(np.float32).reshape(-1, 1),
@@ -563,7 +565,7 @@ def solve_paper(problem: Problem, init: PoseDepthParams) -> tuple[PoseDepthParam
         logs.append(LevelLog(k, len(history), best_value, len(level.points), is_conv))
     with torch.no_grad():
         R = quaternion_to_matrix(q).numpy()
-    raw = PoseDepthParams(R, t.detach().numpy().copy(), float(s), float(b), float(phi))
+    raw = PoseDepthParams(R, t.detach().numpy().copy(), s.item(), b.item(), phi.item())
     return renormalise(raw, float(np.linalg.norm(init.t)), problem.space), logs
 
 
@@ -592,42 +594,71 @@ def _tangent_basis(t: np.ndarray) -> np.ndarray:
 
 class _Chart:
     """Local coordinates delta around ``p``: rotation vector (3, left-multiplied), translation on its
-    sphere (2), scale, offset[, log focal]; :meth:`linear` is exact to first order at delta = 0."""
+    sphere (2), scale, offset[, log focal]. Derivatives are taken at delta = 0."""
 
     def __init__(self, p: PoseDepthParams, with_focal: bool):
         self.p = p
         self.n = 8 if with_focal else 7
         self.norm = float(np.linalg.norm(p.t))
         self.B = _tangent_basis(p.t)
+        self.R, self.t, self.scale, self.offset, self.log_focal = _torch_params(p)
+        self.ef = math.exp(p.log_focal)
 
-    def jacobian(self, pts: Points, K_t: Intrinsics, space: str):
-        """(x, y, dx/d delta, dy/d delta) of the source points at delta = 0: the reprojection of
-        :func:`project` and its analytic derivatives, (N,) and (N, n)."""
-        R, t, s, b, phi = _torch_params(self.p)
-        r = _reproject(R, t, s, b, phi, pts, K_t, space)
-        Y, Rr = r.Y, r.rotated
+    def reproject(self, pts: Points, K_t: Intrinsics, space: str) -> _Reprojection:
+        return _reproject(self.R, self.t, self.scale, self.offset, self.log_focal, pts, K_t, space)
+
+    def _dxy_dY(self, r: _Reprojection, K_t: Intrinsics) -> tuple[torch.Tensor, torch.Tensor]:
+        """Rows (N, 3) of dx/dY and dy/dY (zero where the point is not ok)."""
+        z = torch.where(r.ok, r.Y[:, 2], 1.0)
+        fx = torch.where(r.ok, K_t.fx * self.ef / z, 0.0)
+        fy = torch.where(r.ok, K_t.fy * self.ef / z, 0.0)
+        zero = torch.zeros_like(z)
+        ax = torch.stack([fx, zero, -fx * r.Y[:, 0] / z], 1)
+        ay = torch.stack([zero, fy, -fy * r.Y[:, 1] / z], 1)
+        return ax, ay
+
+    def _drho(self, r: _Reprojection, space: str) -> torch.Tensor:
+        """d rho / d a (a = scale * value + offset)."""
+        return torch.ones_like(r.rho) if space == "inverse" else -r.rho * r.rho
+
+    def jacobian(self, r: _Reprojection, pts: Points, K_t: Intrinsics, space: str):
+        """dx/d delta and dy/d delta, (N, n), of the reprojection ``r`` of ``pts`` (analytic)."""
+        Rr = r.rotated
         zero = torch.zeros_like(r.rho)
-        dY = torch.empty((*Y.shape, self.n), dtype=Y.dtype)  # (N, 3, n)
+        dY = torch.empty((*r.Y.shape, self.n), dtype=r.Y.dtype)  # (N, 3, n)
         # Rotation (I + [w]x) R: d(R ray) = w x (R ray); t is not rotated.
         dY[:, :, 0] = torch.stack([zero, -Rr[:, 2], Rr[:, 1]], 1)
         dY[:, :, 1] = torch.stack([Rr[:, 2], zero, -Rr[:, 0]], 1)
         dY[:, :, 2] = torch.stack([-Rr[:, 1], Rr[:, 0], zero], 1)
-        dY[:, :, 3:5] = r.rho[:, None, None] * torch.as_tensor(self.norm * self.B, dtype=Y.dtype)
-        drho = torch.ones_like(r.rho) if space == "inverse" else -r.rho * r.rho
-        dY[:, :, 5] = t * (drho * pts.value)[:, None]
-        dY[:, :, 6] = t * drho[:, None]
+        dY[:, :, 3:5] = r.rho[:, None, None] * torch.as_tensor(self.norm * self.B, dtype=r.Y.dtype)
+        drho = self._drho(r, space)
+        dY[:, :, 5] = self.t * (drho * pts.value)[:, None]
+        dY[:, :, 6] = self.t * drho[:, None]
         if self.n == 8:  # rays shrink as the focal grows
-            dY[:, :, 7] = -(r.rays[:, :2] @ R[:, :2].T)
-        ef = math.exp(self.p.log_focal)
-        z = torch.where(r.ok, Y[:, 2], torch.ones_like(r.rho))
-        Jx = (K_t.fx * ef / z)[:, None] * (dY[:, 0] - (Y[:, 0] / z)[:, None] * dY[:, 2])
-        Jy = (K_t.fy * ef / z)[:, None] * (dY[:, 1] - (Y[:, 1] / z)[:, None] * dY[:, 2])
+            dY[:, :, 7] = -(r.rays[:, :2] @ self.R[:, :2].T)
+        ax, ay = self._dxy_dY(r, K_t)
+        Jx = torch.einsum("nk,nkj->nj", ax, dY)
+        Jy = torch.einsum("nk,nkj->nj", ay, dY)
+        if self.n == 8:  # x - cx scales with the target focal
+            Jx[:, 7] += torch.where(r.ok, r.x - K_t.cx, 0.0)
+            Jy[:, 7] += torch.where(r.ok, r.y - K_t.cy, 0.0)
+        return Jx, Jy
+
+    def gradient(self, r: _Reprojection, pts: Points, K_t: Intrinsics, space: str, gx, gy) -> np.ndarray:
+        """``sum_p gx_p dx_p/d delta + gy_p dy_p/d delta`` (n,) without forming the Jacobian."""
+        ax, ay = self._dxy_dY(r, K_t)
+        Ybar = gx[:, None] * ax + gy[:, None] * ay  # (N, 3): d loss / dY
+        g = torch.zeros(self.n, dtype=torch.float64)
+        g[0:3] = torch.linalg.cross(r.rotated, Ybar).sum(0, dtype=torch.float64)
+        g[3:5] = torch.as_tensor(self.norm * self.B.T) @ (r.rho[:, None] * Ybar).sum(0, dtype=torch.float64)
+        c = (Ybar @ self.t) * self._drho(r, space)
+        g[5] = (c * pts.value).sum(dtype=torch.float64)
+        g[6] = c.sum(dtype=torch.float64)
         if self.n == 8:
-            Jx[:, 7] += r.x - K_t.cx
-            Jy[:, 7] += r.y - K_t.cy
-        Jx[~r.ok] = 0.0
-        Jy[~r.ok] = 0.0
-        return r.x, r.y, Jx, Jy
+            dY7 = -(r.rays[:, :2] @ self.R[:, :2].T)
+            direct = gx * torch.where(r.ok, r.x - K_t.cx, 0.0) + gy * torch.where(r.ok, r.y - K_t.cy, 0.0)
+            g[7] = ((Ybar * dY7).sum(1) + direct).sum(dtype=torch.float64)
+        return g.numpy()
 
     def retract(self, d: np.ndarray) -> PoseDepthParams:
         """The parameters at ``d`` (exact rotation and a unit-sphere translation)."""
@@ -664,59 +695,69 @@ class _Linearisation(NamedTuple):
 
 
 def _step_motion_px(lin: _Linearisation, step: np.ndarray) -> float:
-    """95th percentile over the points of the predicted displacement (px) of a chart step."""
+    """95th percentile over (at most 4096 of) the points of the displacement (px) a chart step
+    predicts."""
     d = torch.as_tensor(step, dtype=torch.float32)
-    motion = torch.hypot(lin.Jx @ d, lin.Jy @ d)
+    k = max(1, lin.Jx.shape[0] // 4096)
+    motion = torch.hypot(lin.Jx[::k] @ d, lin.Jy[::k] @ d)
     return float(torch.quantile(motion, 0.95)) if motion.numel() else 0.0
 
 
 def _linearise(problem: Problem, level: PhotoLevel, chart: _Chart) -> _Linearisation:
-    """Exact gradient and Gauss-Newton / IRLS curvature of the level's objective in ``chart``."""
+    """Exact gradient and Gauss-Newton / IRLS curvature of the level's objective in ``chart``.
+
+    The gradient chains autograd's d loss / d(x, y) through the analytic reprojection derivative
+    over every point; the curvature only steers the step, so its photometric part is summed over
+    an even subsample of at most ``_CURVATURE_SAMPLES`` points (scaled up)."""
     cfg = problem.cfg
     f = problem.features
     space = problem.space
-
-    x, y, Jx, Jy = chart.jacobian(level.points, level.K_t, space)
-    xf, yf, Jxf, Jyf = chart.jacobian(f.points, problem.levels[0].K_t, space)
-    n_pts, n_f = len(level.points), len(f.points)
-    x, y, xf, yf = (v.requires_grad_() for v in (x, y, xf, yf))
-    s, b, phi = (v.requires_grad_() for v in _torch_params(chart.p)[2:])
+    K_f = problem.levels[0].K_t
+    r = chart.reproject(level.points, level.K_t, space)
+    rf = chart.reproject(f.points, K_f, space)
+    x, y, xf, yf = (v.detach().requires_grad_() for v in (r.x, r.y, rf.x, rf.y))
+    s, b, phi = (v.clone().requires_grad_() for v in (chart.scale, chart.offset, chart.log_focal))
     terms = objective(problem, level, x, y, xf, yf, s, b, phi)
     gx, gy, gxf, gyf, gs, gb, gphi = torch.autograd.grad(
         terms.total, [x, y, xf, yf, s, b, phi], allow_unused=True, materialize_grads=True
     )
-    g = Jx.T @ gx + Jy.T @ gy + Jxf.T @ gxf + Jyf.T @ gyf
-    g = g.double()
+    g = chart.gradient(r, level.points, level.K_t, space, gx, gy) + chart.gradient(
+        rf, f.points, K_f, space, gxf, gyf
+    )
     g[5] += float(gs)
     g[6] += float(gb)
-    H = torch.zeros((chart.n, chart.n), dtype=torch.float64)
+    H = np.zeros((chart.n, chart.n))
+    n_pts = len(level.points)
+    step = max(1, -(-n_pts // _CURVATURE_SAMPLES))
+    sub = slice(0, n_pts, step)
+    rs = _Reprojection(*(v[sub] for v in r))
+    pts_s = Points(level.points.rays[sub], level.points.value[sub])
+    Jx, Jy = chart.jacobian(rs, pts_s, level.K_t, space)
     with torch.no_grad():
         if cfg.use_photo and n_pts:
-            smp = sample_target(level.texture, x, y)
-            grad = sample_target(level.gradients, x, y)
-            colour = level.colour.T  # (3, N)
+            smp = sample_target(level.texture, rs.x, rs.y)
+            grad = sample_target(level.gradients, rs.x, rs.y)
+            colour = level.colour[sub].T  # (3, N)
             Mx = grad[3] * colour - grad[0:3]  # d residual / dx, (3, N)
             My = grad[7] * colour - grad[4:7]
             # sum_p 2 c_p J_p^T M_p^T M_p J_p with M_p = [Mx My] (3x2), J_p = [Jx; Jy] (2xn).
-            c = 2.0 * cfg.lambda_photo / level.known_area * smp[4].clamp_min(0)
+            c = 2.0 * step * cfg.lambda_photo / level.known_area * smp[4].clamp_min(0)
             a, m, e = (c * (Mx * Mx).sum(0)), (c * (Mx * My).sum(0)), (c * (My * My).sum(0))
             Hxy = (Jx * m[:, None]).T @ Jy
-            H += ((Jx * a[:, None]).T @ Jx + Hxy + Hxy.T + (Jy * e[:, None]).T @ Jy).double()
-        if cfg.use_feat and n_f:
-            sq = (xf - f.q_t[:, 0]) ** 2 + (yf - f.q_t[:, 1]) ** 2
-            w = 2.0 * cfg.lambda_feat / n_f * f.weight * barron_weight(sq, cfg.barron_alpha, problem.barron_c)
-            sw = w.clamp_min(0).sqrt()[:, None]
+            H += ((Jx * a[:, None]).T @ Jx + Hxy + Hxy.T + (Jy * e[:, None]).T @ Jy).double().numpy()
+        Jxf, Jyf = chart.jacobian(rf, f.points, K_f, space)
+        if cfg.use_feat and len(f.points):
+            sq = (rf.x - f.q_t[:, 0]) ** 2 + (rf.y - f.q_t[:, 1]) ** 2
+            w = 2.0 * cfg.lambda_feat / len(f.points) * f.weight
+            sw = (w * barron_weight(sq, cfg.barron_alpha, problem.barron_c)).clamp_min(0).sqrt()[:, None]
             Jf = torch.cat([Jxf * sw, Jyf * sw]).double()
-            H += Jf.T @ Jf
+            H += (Jf.T @ Jf).numpy()
         if cfg.refine_focal:
             g[7] += float(gphi)
             H[7, 7] += 2.0 * cfg.focal_prior_weight * problem.prior_ref
-    if n_pts:  # a random subset is enough to measure how far a step moves the image
-        keep = torch.randperm(n_pts, generator=torch.Generator().manual_seed(0))[:_MOTION_SAMPLES]
-        Jm_x, Jm_y = Jx[keep], Jy[keep]
-    else:
-        Jm_x, Jm_y = Jxf, Jyf
-    return _Linearisation(g.numpy(), H.numpy(), Jm_x, Jm_y)
+    if not n_pts:
+        Jx, Jy = Jxf, Jyf
+    return _Linearisation(g, H, Jx, Jy)
 
 
 def _level_value(problem: Problem, level: PhotoLevel, p: PoseDepthParams) -> float:
@@ -732,9 +773,9 @@ def solve_fast(problem: Problem, init: PoseDepthParams) -> tuple[PoseDepthParams
     away (every point pushed out of the target leaves no photometric error), and small steps keep
     to the basin of the start, as the paper's first-order steps do. A step is kept only if it lowers
     the level's objective (on the selected points), otherwise mu grows. A level ends after
-    ``fast_iterations`` steps, when a step gains less than ``fast_ftol`` (relative), or when no
-    damping finds a lower value. A level starts from the initial parameters instead of the carried
-    ones when those are better on it."""
+    ``fast_iterations`` steps, when a step gains less than ``fast_ftol`` (relative), when the
+    quadratic model predicts less than that, or when no damping finds a lower value. A level starts
+    from the initial parameters instead of the carried ones when those are better on it."""
     cfg = problem.cfg
     p = init
     logs: list[LevelLog] = []
@@ -761,6 +802,10 @@ def solve_fast(problem: Problem, init: PoseDepthParams) -> tuple[PoseDepthParams
                     motion = _step_motion_px(lin, step)
                     if motion > radius:
                         step *= radius / motion
+                    predicted = -(lin.g @ step + 0.5 * step @ lin.H @ step)
+                    if predicted < cfg.fast_ftol * abs(value):  # the model sees nothing left to gain
+                        is_conv = True
+                        break
                     cand = chart.retract(step)
                     cand_value = _level_value(problem, level, cand)
                 else:
