@@ -3,6 +3,8 @@ a perturbed start and on the real pairs. Figures, not a test.
 
     .venv/bin/python benchmarks/optimize_bench.py synthetic [--scenes 3] [--size 1280x720]
     .venv/bin/python benchmarks/optimize_bench.py real [--pairs ../shared/data/pairs] [--only a,b]
+    .venv/bin/python benchmarks/optimize_bench.py focal [--scenes 3] [--size 640x480]
+    .venv/bin/python benchmarks/optimize_bench.py eval -- <geofill eval arguments>
 
 ``synthetic``: exact depth and pose of :func:`geofill.synthetic.make_pair`, then the start is
 perturbed (rotation by ``--rot`` deg about a random axis, translation direction by ``--tdir`` deg,
@@ -10,8 +12,14 @@ depth scaled by 1 + ``--scale``); SIFT matches and pose inliers come from the pi
 final rotation / translation-direction / depth-scale errors, the objective and the wall time of each
 solver. ``real``: the pipeline's own start (pose, sparse depth) on each pair with the evaluation's
 brush hole (seed 0); prints the objective of both solvers and, where meta.json has a GT pose, the
-rotation and translation-direction errors before and after. ``--paper-scale`` multiplies the paper
-solver's iteration limits (1 = the paper's 4000/7000/9000/10000); ``--solvers`` picks the solvers.
+rotation and translation-direction errors before and after. ``focal`` (issue 7): synthetic pairs
+whose true focal is ``--ratios`` times the assumed default, filled with and without
+``optimize.refine_focal``; prints the focal, the pose errors and the hole PSNR. ``eval``: ``geofill
+eval`` with the depth stage's result cached per pair, so that every method starts from the same
+depth: the sparse backend (OpenCV's EdgeAwareInterpolator) does not return the same map twice for
+the same input, which would add its noise to the differences between optimisation variants.
+``--paper-scale`` multiplies the paper solver's iteration limits (1 = the paper's
+4000/7000/9000/10000); ``--solvers`` picks the solvers.
 """
 
 from __future__ import annotations
@@ -25,11 +33,13 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import pytorch_optimizer  # noqa: F401  (imported here, not inside the first timed paper run)
 from scipy.spatial.transform import Rotation
 
-from geofill.camera import Intrinsics, pose_errors_deg
+from geofill.camera import Intrinsics, default_focal_px, pose_errors_deg
 from geofill.config import FillConfig, parse_overrides
 from geofill.depth.align import AlignedDepth
+from geofill.evaluation.metrics import psnr
 from geofill.evaluation.runner import load_pairs, pair_mask
 from geofill.optimize import OptimizationResult, optimize_pose_depth
 from geofill.pipeline import FillArtifacts, fill
@@ -56,17 +66,22 @@ def pipeline_start(target, hole, source, cfg: FillConfig) -> Start | None:
     return Start(art, art.pose.T, art.depth)
 
 
-def run(start: Start, cfg: FillConfig, solver: str, paper_scale: float) -> tuple[OptimizationResult, float]:
+def run(
+    start: Start, cfg: FillConfig, solver: str, paper_scale: float
+) -> tuple[OptimizationResult, float, float]:
+    """One solver from ``start``: the result, its wall time and its CPU time (s). The optimisation is
+    single-threaded (``optimize.threads``), so on a machine shared with other jobs its CPU time is
+    what the wall time would be on a quiet one."""
     oc = replace(cfg.optimize, solver=solver)
     if solver == "paper":
         oc = replace(oc, paper_iterations=[max(1, round(n * paper_scale)) for n in oc.paper_iterations])
     v, m, inl = start.art.views, start.art.matches, start.art.pose.inliers
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     res = optimize_pose_depth(
         v.target, v.hole, v.source, v.K_target, v.K_source, start.T, start.depth,
         m.pts_target[inl], m.pts_source[inl], oc,
     )  # fmt: skip
-    return res, time.perf_counter() - t0
+    return res, time.perf_counter() - t0, time.process_time() - c0
 
 
 def perturb(T: np.ndarray, rot_deg: float, tdir_deg: float, rng: np.random.Generator) -> np.ndarray:
@@ -89,8 +104,8 @@ def synthetic(args, cfg: FillConfig) -> None:
         f"synthetic {w}x{h}, start: rotation {args.rot} deg, translation direction {args.tdir} deg, "
         f"depth x{1 + args.scale:g}; paper iterations x{args.paper_scale:g}"
     )
-    head = f"{'scene':<8s} {'solver':<6s} {'R_err':>7s} {'t_err':>7s} {'s_err%':>7s} {'objective':>13s} {'status':>9s} {'time_s':>7s}"  # noqa: E501
-    print(head)
+    cols = ("R_err", "t_err", "s_err%", "objective", "status", "wall_s", "cpu_s")
+    print(f"{'scene':<8s} {'solver':<6s} " + " ".join(f"{c:>13s}" for c in cols))
     rows: dict[str, list] = {s: [] for s in args.solvers}
     for seed in range(args.scenes):
         sp = make_pair(seed=seed, width=w, height=h)
@@ -112,24 +127,24 @@ def synthetic(args, cfg: FillConfig) -> None:
         T0 = perturb(T_gt, args.rot, args.tdir, np.random.default_rng(seed))
         start = Start(start.art, T0, depth)
         r0, t0 = pose_errors_deg(T0, T_gt)
-        print(f"{seed:<8d} {'start':<6s} {r0:7.3f} {t0:7.3f} {100 * args.scale:7.2f}")
+        print(f"{seed:<8d} {'start':<6s} {r0:13.3f} {t0:13.3f} {100 * args.scale:13.2f}")
         for solver in args.solvers:
-            res, sec = run(start, cfg, solver, args.paper_scale)
+            res, wall, cpu = run(start, cfg, solver, args.paper_scale)
             r, t = pose_errors_deg(res.T, T_gt)
             s_err = 100 * abs(res.params.scale / (1 + args.scale) - 1)
             rep = res.report
-            rows[solver].append((r, t, s_err, rep.final_objective, sec))
+            rows[solver].append((r, t, s_err, rep.final_objective, wall, cpu))
             print(
-                f"{seed:<8d} {solver:<6s} {r:7.3f} {t:7.3f} {s_err:7.2f} {rep.final_objective:13.7e} "
-                f"{rep.status:>9s} {sec:7.2f}",
+                f"{seed:<8d} {solver:<6s} {r:13.3f} {t:13.3f} {s_err:13.2f} {rep.final_objective:13.7e} "
+                f"{rep.status:>13s} {wall:13.2f} {cpu:13.2f}",
                 flush=True,
             )
     for solver, rs in rows.items():
         if rs:
-            med = [statistics.median(c) for c in zip(*rs, strict=True)]
+            m = [statistics.median(c) for c in zip(*rs, strict=True)]
             print(
-                f"{'MEDIAN':<8s} {solver:<6s} {med[0]:7.3f} {med[1]:7.3f} {med[2]:7.2f} {med[3]:13.7e} "
-                f"{'':>9s} {med[4]:7.2f}"
+                f"{'MEDIAN':<8s} {solver:<6s} {m[0]:13.3f} {m[1]:13.3f} {m[2]:13.2f} {m[3]:13.7e} "
+                f"{'':>13s} {m[4]:13.2f} {m[5]:13.2f}"
             )
 
 
@@ -138,7 +153,7 @@ def real(args, cfg: FillConfig) -> None:
     if args.only:
         pairs = [p for p in pairs if p.id in args.only.split(",")]
     print(f"real pairs, pipeline start, brush hole seed 0; paper iterations x{args.paper_scale:g}")
-    cols = ["R0", "t0"] + [f"{c}_{s}" for s in args.solvers for c in ("R", "t", "obj", "sec")]
+    cols = ["R0", "t0"] + [f"{c}_{s}" for s in args.solvers for c in ("R", "t", "obj", "wall", "cpu")]
     print(f"{'pair':<34s} {'obj0':>12s} " + " ".join(f"{c:>12s}" for c in cols))
     gt_rows = []
     for pair in pairs:
@@ -152,16 +167,62 @@ def real(args, cfg: FillConfig) -> None:
         row = dict(zip(("R0", "t0"), _errors(start.T, gt), strict=True))
         obj0 = np.nan
         for solver in args.solvers:
-            res, sec = run(start, cfg, solver, args.paper_scale)
+            res, wall, cpu = run(start, cfg, solver, args.paper_scale)
             obj0 = res.report.initial_objective
             row |= dict(zip((f"R_{solver}", f"t_{solver}"), _errors(res.T, gt), strict=True))
-            row |= {f"obj_{solver}": res.report.final_objective, f"sec_{solver}": sec}
+            row |= {f"obj_{solver}": res.report.final_objective, f"wall_{solver}": wall, f"cpu_{solver}": cpu}
         print(f"{pair.id:<34s} {obj0:12.6e} " + " ".join(_fmt(row[c]) for c in cols), flush=True)
         if T_gt is not None:
             gt_rows.append(row)
     for name, fn in (("MEAN (GT)", statistics.mean), ("MEDIAN (GT)", statistics.median)):
         if gt_rows:
             print(f"{name:<34s} {'':>12s} " + " ".join(_fmt(fn([r[c] for r in gt_rows])) for c in cols))
+
+
+def focal(args, cfg: FillConfig) -> None:
+    w, h = (int(x) for x in args.size.split("x"))
+    f0 = default_focal_px(w, h)
+    print(f"focal refinement, synthetic {w}x{h}, assumed focal {f0:g} px (the default)")
+    cols = ("ratio", "refine", "f_true", "f_used", "R_err", "t_err", "psnr_hole")
+    print(f"{'scene':<6s} " + " ".join(f"{c:>9s}" for c in cols))
+    for ratio in args.ratios:
+        for seed in range(args.scenes):
+            sp = make_pair(seed=seed, width=w, height=h, focal_px=f0 * ratio)
+            for refine in (False, True):
+                res = fill(sp.target, sp.hole, sp.source, cfg.updated({"optimize.refine_focal": refine}))
+                o = res.artifacts.optimization
+                if o is None:
+                    print(f"{seed:<6d} {ratio:9.2f} {refine!s:>9s} no optimisation ({res.report.status})")
+                    continue
+                r, t = pose_errors_deg(o.T, sp.T_source_to_target)
+                p = psnr(res.image, sp.target, sp.hole)
+                vals = (f0 * ratio, o.K_target.fx, r, t, p)
+                print(
+                    f"{seed:<6d} {ratio:9.2f} {refine!s:>9s} " + " ".join(f"{v:9.3f}" for v in vals),
+                    flush=True,
+                )
+
+
+def eval_same_depth(argv: list[str]) -> int:
+    """``geofill eval`` with ``pipeline._dense_depth`` memoised per (source, hole, pose) content."""
+    import hashlib
+
+    import geofill.pipeline as pipeline
+    from geofill.evaluation.cli import main_eval
+
+    compute, cache = pipeline._dense_depth, {}
+
+    def cached(views, pose, pts, source_size, cfg):
+        h = hashlib.sha1()
+        for a in (views.source, views.hole, pose.T, pts.xyz_source):
+            h.update(np.ascontiguousarray(a).tobytes())
+        key = (h.hexdigest(), cfg.depth.backend)
+        if key not in cache:
+            cache[key] = compute(views, pose, pts, source_size, cfg)
+        return cache[key]
+
+    pipeline._dense_depth = cached
+    return main_eval(argv)
 
 
 def _errors(T: np.ndarray, T_gt: np.ndarray | None) -> tuple[float, float]:
@@ -173,8 +234,11 @@ def _fmt(v: float) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    if argv[:1] == ["eval"]:
+        return eval_same_depth([a for a in argv[1:] if a != "--"])
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("mode", choices=["synthetic", "real"])
+    ap.add_argument("mode", choices=["synthetic", "real", "focal"])
     ap.add_argument("--solvers", default="fast,paper", type=lambda s: s.split(","))
     ap.add_argument("--paper-scale", type=float, default=1.0, help="multiplies the paper iteration limits")
     ap.add_argument("--scenes", type=int, default=3)
@@ -182,12 +246,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--rot", type=float, default=5.0)
     ap.add_argument("--tdir", type=float, default=10.0)
     ap.add_argument("--scale", type=float, default=0.2)
+    ap.add_argument("--ratios", default="0.8,1.25", type=lambda s: [float(x) for x in s.split(",")])
     ap.add_argument("--pairs", default=str(PAIRS))
     ap.add_argument("--only", help="comma-separated pair ids")
     ap.add_argument("--set", action="append", metavar="KEY=VALUE", help="config override (repeatable)")
     args = ap.parse_args(argv)
     cfg = FillConfig().updated(parse_overrides(args.set))
-    (synthetic if args.mode == "synthetic" else real)(args, cfg)
+    {"synthetic": synthetic, "real": real, "focal": focal}[args.mode](args, cfg)
     return 0
 
 

@@ -188,6 +188,13 @@ def test_analytic_jacobian_matches_finite_differences(space):
         assert np.allclose(Jy[:, i].numpy(), fd[:, 1], rtol=1e-3, atol=1e-2), i
 
 
+def test_quaternion_to_matrix_matches_scipy():
+    rot = Rotation.from_rotvec([0.3, -1.2, 0.5])
+    x, y, z, w = rot.as_quat()
+    q = torch.tensor([w, x, y, z], dtype=torch.float64) * 3.0  # not normalised on purpose
+    assert np.allclose(opt.quaternion_to_matrix(q).numpy(), rot.as_matrix(), atol=1e-12)
+
+
 # ---------------------------------------------------------------------------------------------
 # Convergence test (supplement)
 

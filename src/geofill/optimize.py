@@ -119,7 +119,8 @@ def _torch_params(p: PoseDepthParams) -> tuple[torch.Tensor, ...]:
 
 
 def quaternion_to_matrix(q: torch.Tensor) -> torch.Tensor:
-    """Rotation matrix of the quaternion (w, x, y, z), normalised first (differentiable)."""
+    """Rotation matrix of the quaternion (w, x, y, z), normalised first (differentiable; torch has
+    no quaternion type and PyTorch3D's conversion comes with no CPU wheel)."""
     w, x, y, z = q / torch.linalg.vector_norm(q)
     return torch.stack(
         [

@@ -93,7 +93,19 @@ register_method("homography", _homography_method)
 
 #: geofill variants selectable by name: config overrides on top of the run's base config
 #: (``geofill eval --config/--set``). The paper's ablations are entries here.
-GEOFILL_VARIANTS: dict[str, dict[str, Any]] = {"geofill": {}}
+GEOFILL_VARIANTS: dict[str, dict[str, Any]] = {
+    "geofill": {},
+    # Joint optimisation (issue 5): off, the paper's solver, and the paper's loss / W ablations.
+    "geofill:init": {"optimize.enabled": False},
+    "geofill:paper": {"optimize.solver": "paper"},
+    "geofill:no-photo": {"optimize.use_photo": False},
+    "geofill:no-feat": {"optimize.use_feat": False},
+    "geofill:no-negd": {"optimize.use_negd": False},
+    "geofill:no-hole-w": {"optimize.use_hole_weight": False},
+    "geofill:no-edge-w": {"optimize.use_edge_weight": False},
+    "geofill:uniform-w": {"optimize.use_hole_weight": False, "optimize.use_edge_weight": False},
+    "geofill:refine-focal": {"optimize.refine_focal": True},
+}
 #: What ``--methods`` defaults to: the baselines and geofill as configured (variants by name).
 DEFAULT_METHODS = (*BASELINES, "geofill")
 
@@ -111,6 +123,7 @@ def geofill_method(cfg: FillConfig) -> Method:
             "pose_status": r.pose_status,
             "n_pose_inliers": r.n_pose_inliers,
             "hole_coverage": round(r.hole_coverage, 4),
+            "optimize": r.optimization.get("status", ""),
         }
         return MethodOutput(res.image, dict(r.timings_s), info)
 
