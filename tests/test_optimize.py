@@ -168,7 +168,8 @@ def test_analytic_jacobian_matches_finite_differences(space):
     r = chart.reproject(pts, K_t, space)
     Jx, Jy = chart.jacobian(r, pts, K_t, space)
     gx, gy = torch.randn(50, generator=torch.Generator().manual_seed(0)), torch.randn(50)
-    g = chart.gradient(r, pts, K_t, space, gx, gy)  # J^T v without the Jacobian
+    raw = opt.reprojection_vjp(r, pts, K_t, space, chart.R, chart.t, p.log_focal, gx, gy)
+    g = chart.gradient(raw)  # J^T v without the Jacobian
     assert np.allclose(g, (Jx.T @ gx + Jy.T @ gy).double().numpy(), rtol=1e-4, atol=1e-3)
     pts64 = opt.Points(pts.rays.double(), pts.value.double())
 
@@ -193,6 +194,31 @@ def test_quaternion_to_matrix_matches_scipy():
     x, y, z, w = rot.as_quat()
     q = torch.tensor([w, x, y, z], dtype=torch.float64) * 3.0  # not normalised on purpose
     assert np.allclose(opt.quaternion_to_matrix(q).numpy(), rot.as_matrix(), atol=1e-12)
+
+
+@pytest.mark.parametrize("space", ["inverse", "depth"])
+def test_reprojection_vjp_equals_autograd_through_the_projection(space):
+    rng = np.random.default_rng(3)
+    K_s = Intrinsics(300.0, 300.0, 160.0, 120.0, 320, 240)
+    K_t = Intrinsics(310.0, 305.0, 150.0, 125.0, 320, 240)
+    values = rng.uniform(0.2, 1.0, 200) if space == "inverse" else rng.uniform(1.0, 5.0, 200)
+    pts = opt.Points.from_pixels(rng.uniform(0, [320, 240], (200, 2)), K_s, values)
+    gx, gy = (torch.tensor(rng.normal(size=200), dtype=torch.float32) for _ in range(2))
+    x, y, z, w = Rotation.from_rotvec([0.05, -0.1, 0.02]).as_quat()
+    q = torch.tensor([w, x, y, z], dtype=torch.float64, requires_grad=True)
+    rest = [
+        torch.tensor(v, dtype=torch.float64, requires_grad=True) for v in ([0.6, 0.1, 0.2], 1.1, 0.05, 0.1)
+    ]
+    R = opt.quaternion_to_matrix(q)
+    args = [R.float(), *(v.float() for v in rest)]
+    px, py = opt.project(*args, pts, K_t, space)
+    (gx * px + gy * py).sum().backward()
+    with torch.no_grad():
+        r = opt._reproject(*args, pts, K_t, space)
+        raw = opt.reprojection_vjp(r, pts, K_t, space, args[0], args[1], 0.1, gx, gy)
+    (gq,) = torch.autograd.grad(opt.quaternion_to_matrix(q), q, raw.R)
+    for mine, leaf in zip([gq, raw.t, raw.scale, raw.offset, raw.log_focal], [q, *rest], strict=True):
+        assert torch.allclose(mine, leaf.grad, rtol=1e-3, atol=1e-4 * float(leaf.grad.abs().max()))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -328,3 +354,5 @@ def test_focal_refinement_moves_towards_the_true_focal():
     f_refined = o["focal_target_px"]
     assert abs(math.log(f_refined / f_true)) < 0.5 * abs(math.log(f_assumed / f_true))
     assert res.artifacts.optimization.K_source.origin == "refined"
+    assert res.report.intrinsics_target["origin"] == "refined"
+    assert res.report.intrinsics_target["fx_px"] == pytest.approx(f_refined)

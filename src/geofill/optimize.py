@@ -203,6 +203,57 @@ def project(
     return r.x, r.y
 
 
+class RawGradient(NamedTuple):
+    """Gradient of a loss with respect to the parameters of :func:`project` (float64)."""
+
+    R: torch.Tensor  # (3, 3)
+    t: torch.Tensor  # (3,)
+    scale: torch.Tensor  # 0-d
+    offset: torch.Tensor
+    log_focal: torch.Tensor
+
+    def __add__(self, other: RawGradient) -> RawGradient:  # type: ignore[override]
+        return RawGradient(*(a + b for a, b in zip(self, other, strict=True)))
+
+
+def _dxy_dY(r: _Reprojection, K_t: Intrinsics, ef: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """Rows (N, 3) of dx/dY and dy/dY (zero where the point is not ok)."""
+    z = torch.where(r.ok, r.Y[:, 2], 1.0)
+    fx = torch.where(r.ok, K_t.fx * ef / z, 0.0)
+    fy = torch.where(r.ok, K_t.fy * ef / z, 0.0)
+    zero = torch.zeros_like(z)
+    return torch.stack([fx, zero, -fx * r.Y[:, 0] / z], 1), torch.stack([zero, fy, -fy * r.Y[:, 1] / z], 1)
+
+
+def _drho_da(r: _Reprojection, space: str) -> torch.Tensor:
+    """d rho / d a with a = scale * value + offset."""
+    return torch.ones_like(r.rho) if space == "inverse" else -r.rho * r.rho
+
+
+def reprojection_vjp(
+    r: _Reprojection,
+    pts: Points,
+    K_t: Intrinsics,
+    space: str,
+    R: torch.Tensor,
+    t: torch.Tensor,
+    log_focal: float,
+    gx: torch.Tensor,
+    gy: torch.Tensor,
+) -> RawGradient:
+    """``sum_p gx_p dx_p/d theta + gy_p dy_p/d theta`` for theta = (R, t, scale, offset, log focal):
+    the backward pass of :func:`project` written out, so that the fast solver gets its exact
+    gradient from autograd's d loss / d(x, y) without forming the (N, n) Jacobian."""
+    ef = math.exp(log_focal)
+    ax, ay = _dxy_dY(r, K_t, ef)
+    Ybar = gx[:, None] * ax + gy[:, None] * ay  # d loss / dY, (N, 3)
+    c = (Ybar @ t) * _drho_da(r, space)
+    d7 = -(r.rays[:, :2] @ R[:, :2].T)  # dY / d log_focal: rays shrink as the focal grows
+    direct = gx * torch.where(r.ok, r.x - K_t.cx, 0.0) + gy * torch.where(r.ok, r.y - K_t.cy, 0.0)
+    sums = (Ybar.T @ r.rays, r.rho @ Ybar, c @ pts.value, c.sum(), (Ybar * d7).sum() + direct.sum())
+    return RawGradient(*(v.double() for v in sums))
+
+
 def barron_loss(sq: torch.Tensor, alpha: float, c: float) -> torch.Tensor:
     """Barron's general robust loss f(x, alpha, c) (CVPR 2019, paper Eq. 4) of ``sq = x^2``, with its
     limits at alpha = 2 (L2) and alpha = 0 (Cauchy); alpha = -2 is Geman-McClure
@@ -547,9 +598,8 @@ def solve_paper(problem: Problem, init: PoseDepthParams) -> tuple[PoseDepthParam
             opt.zero_grad()
             R = quaternion_to_matrix(q).float()
             s32, b32, phi32 = s.float(), b.float(), phi.float()
-            terms = objective(
-                problem, level, *_project_all(problem, level, R, t.float(), s32, b32, phi32), s32, b32, phi32
-            )
+            xy = _project_all(problem, level, R, t.float(), s32, b32, phi32)
+            terms = objective(problem, level, *xy, s32, b32, phi32)
             terms.total.backward()
             value = float(terms.total.detach())
             if value < best_value:
@@ -608,20 +658,6 @@ class _Chart:
     def reproject(self, pts: Points, K_t: Intrinsics, space: str) -> _Reprojection:
         return _reproject(self.R, self.t, self.scale, self.offset, self.log_focal, pts, K_t, space)
 
-    def _dxy_dY(self, r: _Reprojection, K_t: Intrinsics) -> tuple[torch.Tensor, torch.Tensor]:
-        """Rows (N, 3) of dx/dY and dy/dY (zero where the point is not ok)."""
-        z = torch.where(r.ok, r.Y[:, 2], 1.0)
-        fx = torch.where(r.ok, K_t.fx * self.ef / z, 0.0)
-        fy = torch.where(r.ok, K_t.fy * self.ef / z, 0.0)
-        zero = torch.zeros_like(z)
-        ax = torch.stack([fx, zero, -fx * r.Y[:, 0] / z], 1)
-        ay = torch.stack([zero, fy, -fy * r.Y[:, 1] / z], 1)
-        return ax, ay
-
-    def _drho(self, r: _Reprojection, space: str) -> torch.Tensor:
-        """d rho / d a (a = scale * value + offset)."""
-        return torch.ones_like(r.rho) if space == "inverse" else -r.rho * r.rho
-
     def jacobian(self, r: _Reprojection, pts: Points, K_t: Intrinsics, space: str):
         """dx/d delta and dy/d delta, (N, n), of the reprojection ``r`` of ``pts`` (analytic)."""
         Rr = r.rotated
@@ -632,12 +668,12 @@ class _Chart:
         dY[:, :, 1] = torch.stack([Rr[:, 2], zero, -Rr[:, 0]], 1)
         dY[:, :, 2] = torch.stack([-Rr[:, 1], Rr[:, 0], zero], 1)
         dY[:, :, 3:5] = r.rho[:, None, None] * torch.as_tensor(self.norm * self.B, dtype=r.Y.dtype)
-        drho = self._drho(r, space)
+        drho = _drho_da(r, space)
         dY[:, :, 5] = self.t * (drho * pts.value)[:, None]
         dY[:, :, 6] = self.t * drho[:, None]
         if self.n == 8:  # rays shrink as the focal grows
             dY[:, :, 7] = -(r.rays[:, :2] @ self.R[:, :2].T)
-        ax, ay = self._dxy_dY(r, K_t)
+        ax, ay = _dxy_dY(r, K_t, self.ef)
         Jx = torch.einsum("nk,nkj->nj", ax, dY)
         Jy = torch.einsum("nk,nkj->nj", ay, dY)
         if self.n == 8:  # x - cx scales with the target focal
@@ -645,21 +681,16 @@ class _Chart:
             Jy[:, 7] += torch.where(r.ok, r.y - K_t.cy, 0.0)
         return Jx, Jy
 
-    def gradient(self, r: _Reprojection, pts: Points, K_t: Intrinsics, space: str, gx, gy) -> np.ndarray:
-        """``sum_p gx_p dx_p/d delta + gy_p dy_p/d delta`` (n,) without forming the Jacobian."""
-        ax, ay = self._dxy_dY(r, K_t)
-        Ybar = gx[:, None] * ax + gy[:, None] * ay  # (N, 3): d loss / dY
-        g = torch.zeros(self.n, dtype=torch.float64)
-        g[0:3] = torch.linalg.cross(r.rotated, Ybar).sum(0, dtype=torch.float64)
-        g[3:5] = torch.as_tensor(self.norm * self.B.T) @ (r.rho[:, None] * Ybar).sum(0, dtype=torch.float64)
-        c = (Ybar @ self.t) * self._drho(r, space)
-        g[5] = (c * pts.value).sum(dtype=torch.float64)
-        g[6] = c.sum(dtype=torch.float64)
+    def gradient(self, raw: RawGradient) -> np.ndarray:
+        """The chart gradient (n,) from the gradient in (R, t, scale, offset, log focal)."""
+        M = raw.R @ torch.as_tensor(self.p.R).T  # rotation (I + [w]x) R: dl/dw = vee(M - M^T)
+        g = np.empty(self.n)
+        g[0:3] = [M[2, 1] - M[1, 2], M[0, 2] - M[2, 0], M[1, 0] - M[0, 1]]
+        g[3:5] = (self.norm * self.B.T) @ raw.t.numpy()
+        g[5], g[6] = float(raw.scale), float(raw.offset)
         if self.n == 8:
-            dY7 = -(r.rays[:, :2] @ self.R[:, :2].T)
-            direct = gx * torch.where(r.ok, r.x - K_t.cx, 0.0) + gy * torch.where(r.ok, r.y - K_t.cy, 0.0)
-            g[7] = ((Ybar * dY7).sum(1) + direct).sum(dtype=torch.float64)
-        return g.numpy()
+            g[7] = float(raw.log_focal)
+        return g
 
     def retract(self, d: np.ndarray) -> PoseDepthParams:
         """The parameters at ``d`` (exact rotation and a unit-sphere translation)."""
@@ -722,9 +753,10 @@ def _linearise(problem: Problem, level: PhotoLevel, chart: _Chart) -> _Linearisa
     gx, gy, gxf, gyf, gs, gb, gphi = torch.autograd.grad(
         terms.total, [x, y, xf, yf, s, b, phi], allow_unused=True, materialize_grads=True
     )
-    g = chart.gradient(r, level.points, level.K_t, space, gx, gy) + chart.gradient(
-        rf, f.points, K_f, space, gxf, gyf
-    )
+    lf = chart.p.log_focal
+    raw = reprojection_vjp(r, level.points, level.K_t, space, chart.R, chart.t, lf, gx, gy)
+    raw += reprojection_vjp(rf, f.points, K_f, space, chart.R, chart.t, lf, gxf, gyf)
+    g = chart.gradient(raw)
     g[5] += float(gs)
     g[6] += float(gb)
     H = np.zeros((chart.n, chart.n))

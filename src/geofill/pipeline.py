@@ -300,6 +300,9 @@ def _reference_fill(target, hole, source, cfg, target_exif, source_exif, prog, r
             if opt.report.status == "rejected":
                 report.fallbacks.append(f"optimisation rejected, initial geometry kept: {opt.report.reason}")
             T, K_tw, K_sw, depth_s = opt.T, opt.K_target, opt.K_source, opt.depth.depth
+            if K_tw.origin == "refined":
+                report.intrinsics_target = K_tw.resized(target.shape[1], target.shape[0]).to_json()
+                report.intrinsics_source = K_sw.resized(source.shape[1], source.shape[0]).to_json()
     # --- end of optimisation
 
     with prog.stage("render") as notes:
