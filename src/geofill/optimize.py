@@ -63,7 +63,7 @@ from scipy.spatial.transform import Rotation
 
 from .camera import Intrinsics, make_pose, rotation_error_deg, translation_direction_error_deg
 from .config import OptimizeConfig
-from .depth.align import AlignedDepth, to_depth
+from .depth.align import AlignedDepth, sample_at, to_depth
 from .importance import importance_map
 
 #: Coordinate given to points that must not touch the target (bilinear sampling returns zeros).
@@ -396,21 +396,6 @@ def _resize_views(target, hole, source, values, K_t, K_s, pts_t, pts_s, max_side
     )
 
 
-def _bilinear_np(image: np.ndarray, pts: np.ndarray) -> np.ndarray:
-    """Bilinear samples of a float32 (H, W) map at (N, 2) pixel positions; NaN when a tap is NaN."""
-    if len(pts) == 0:
-        return np.zeros(0, np.float32)
-    out = cv2.remap(
-        image,
-        pts[:, 0].astype(np.float32).reshape(-1, 1),
-        pts[:, 1].astype(np.float32).reshape(-1, 1),
-        cv2.INTER_LINEAR,
-        borderMode=cv2.BORDER_CONSTANT,
-        borderValue=float("nan"),
-    )
-    return out.ravel()
-
-
 def build_problem(
     target: np.ndarray,
     hole: np.ndarray,
@@ -466,8 +451,8 @@ def build_problem(
                 all_values=points.value,
             )
         )
-    fv = _bilinear_np(values.astype(np.float32), pts_s)
-    fw = _bilinear_np(weight, pts_t)
+    fv = sample_at(values, pts_s)
+    fw = sample_at(weight, pts_t)
     keep = np.isfinite(fv) & np.isfinite(fw)
     features = FeatureSet(
         Points.from_pixels(pts_s[keep], K_s, fv[keep]),
