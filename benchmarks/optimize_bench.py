@@ -3,7 +3,7 @@ a perturbed start and on the real pairs. Figures, not a test.
 
     .venv/bin/python benchmarks/optimize_bench.py synthetic [--scenes 3] [--size 1280x720]
     .venv/bin/python benchmarks/optimize_bench.py real [--pairs ../shared/data/pairs] [--only a,b]
-    .venv/bin/python benchmarks/optimize_bench.py focal [--scenes 3] [--size 640x480]
+    .venv/bin/python benchmarks/optimize_bench.py focal [--scenes 3] [--ratios 0.8,1.25]
     .venv/bin/python benchmarks/optimize_bench.py eval -- <geofill eval arguments>
 
 ``synthetic``: exact depth and pose of :func:`geofill.synthetic.make_pair`, then the start is

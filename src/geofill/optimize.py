@@ -816,12 +816,15 @@ def solve_fast(problem: Problem, init: PoseDepthParams) -> tuple[PoseDepthParams
                     step = np.linalg.solve(lin.H + mu * np.diag(diag), -lin.g)
                 except np.linalg.LinAlgError:
                     step = np.full(chart.n, np.nan)
+                truncated = False
                 if np.all(np.isfinite(step)):
                     motion = _step_motion_px(lin, step)
                     if motion > radius:
                         step *= radius / motion
+                        truncated = True
                     predicted = -(lin.g @ step + 0.5 * step @ lin.H @ step)
-                    if predicted < cfg.fast_ftol * abs(value):  # the model sees nothing left to gain
+                    # A step shortened by the trust region says nothing about convergence.
+                    if not truncated and predicted < cfg.fast_ftol * abs(value):
                         is_conv = True
                         break
                     cand = chart.retract(step)
@@ -832,7 +835,7 @@ def solve_fast(problem: Problem, init: PoseDepthParams) -> tuple[PoseDepthParams
                     gain = (value - cand_value) / max(abs(value), 1e-300)
                     p, value = cand, cand_value
                     mu = max(mu / _LM_DOWN, _LM_MU_MIN)
-                    is_conv = gain < cfg.fast_ftol
+                    is_conv = not truncated and gain < cfg.fast_ftol
                     break
                 mu *= _LM_UP
                 if mu > _LM_MU_MAX:

@@ -123,7 +123,7 @@ def geofill_method(cfg: FillConfig) -> Method:
             "pose_status": r.pose_status,
             "n_pose_inliers": r.n_pose_inliers,
             "hole_coverage": round(r.hole_coverage, 4),
-            "optimize": r.optimization.get("status", ""),
+            "optimize": ": ".join(filter(None, (r.optimization.get(k, "") for k in ("status", "reason")))),
         }
         return MethodOutput(res.image, dict(r.timings_s), info)
 
