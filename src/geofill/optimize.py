@@ -71,6 +71,11 @@ _FAR_PX = 1e6
 #: Levenberg-Marquardt damping: start, bounds and the factors applied on rejection / acceptance.
 _LM_MU0, _LM_MU_MIN, _LM_MU_MAX = 1e-4, 1e-9, 1e6
 _LM_UP, _LM_DOWN = 8.0, 4.0
+#: The fast solver's trust region (``fast_step_px`` at the start of each level) grows and shrinks by
+#: factors of 2 within this factor of its start.
+_RADIUS_GROWTH = 16.0
+#: Largest factor by which an accepted fast-solver step is extended along its direction.
+_MAX_EXTENSION = 64.0
 #: Photometric points (an even subsample) that the fast solver's curvature and step length use.
 _CURVATURE_SAMPLES = 1 << 16
 
@@ -317,6 +322,7 @@ class PhotoLevel:
     points: Points  # the photometric points: source pixels with a depth
     colour: torch.Tensor  # (N, 3) their RGB in [0, 1]
     all_values: torch.Tensor  # depth values of every source pixel of the level (L_negD)
+    value_range: tuple[float, float]  # their min and max
 
     def subset(self, keep: torch.Tensor) -> PhotoLevel:
         """The same level with only the photometric points ``keep`` (L_negD still sees all pixels)."""
@@ -449,6 +455,7 @@ def build_problem(
                 points=points,
                 colour=torch.from_numpy(src[ii, jj, :3].copy()),
                 all_values=points.value,
+                value_range=(float(np.nanmin(val)), float(np.nanmax(val))) if ii.size else (1.0, 1.0),
             )
         )
     fv = sample_at(values, pts_s)
@@ -735,15 +742,16 @@ def _linearise(problem: Problem, level: PhotoLevel, chart: _Chart) -> _Linearisa
     x, y, xf, yf = (v.detach().requires_grad_() for v in (r.x, r.y, rf.x, rf.y))
     s, b, phi = (v.clone().requires_grad_() for v in (chart.scale, chart.offset, chart.log_focal))
     terms = objective(problem, level, x, y, xf, yf, s, b, phi)
-    gx, gy, gxf, gyf, gs, gb, gphi = torch.autograd.grad(
-        terms.total, [x, y, xf, yf, s, b, phi], allow_unused=True, materialize_grads=True
+    gx, gy, gxf, gyf, gphi = torch.autograd.grad(
+        terms.total, [x, y, xf, yf, phi], allow_unused=True, materialize_grads=True
     )
     lf = chart.p.log_focal
     raw = reprojection_vjp(r, level.points, level.K_t, space, chart.R, chart.t, lf, gx, gy)
     raw += reprojection_vjp(rf, f.points, K_f, space, chart.R, chart.t, lf, gxf, gyf)
+    # s and b enter the objective directly only through L_negD, a hinge that _lm_step enforces as
+    # the constraint s v + b >= 0: its gradient (steep, and zero once feasible) would only mislead
+    # the quadratic model, so gs and gb are left out.
     g = chart.gradient(raw)
-    g[5] += float(gs)
-    g[6] += float(gb)
     H = np.zeros((chart.n, chart.n))
     n_pts = len(level.points)
     step = max(1, -(-n_pts // _CURVATURE_SAMPLES))
@@ -782,17 +790,63 @@ def _level_value(problem: Problem, level: PhotoLevel, p: PoseDepthParams) -> flo
     return float(evaluate(problem, p, level).total)
 
 
+def _lm_step(lin: _Linearisation, damping: np.ndarray, level: PhotoLevel, p: PoseDepthParams, negd: bool):
+    """The damped Gauss-Newton step ``(H + diag(damping)) delta = -g`` (NaN if singular).
+
+    L_negD is a hinge the quadratic model cannot see: a step that would make any depth of the level
+    negative (``s v + b <= 0`` at the smallest or largest v) is replaced by the model's best step that
+    lands on ``s v + b = 0`` instead (equality-constrained, KKT system). Without this the steps kept
+    hitting the hinge's wall and being rejected whenever the photometric optimum leans on it (far
+    pixels at inverse depth ~ 0 make it a wall at b ~ 0)."""
+    A = lin.H + np.diag(damping)
+    try:
+        step = np.linalg.solve(A, -lin.g)
+        if not negd:
+            return step
+        v = (
+            level.value_range[0]
+            if p.scale * level.value_range[0] <= p.scale * level.value_range[1]
+            else level.value_range[1]
+        )
+        floor = p.scale * v + p.offset
+        if floor + step[5] * v + step[6] >= 0:
+            return step
+        n = np.zeros(len(step))
+        n[5], n[6] = v, 1.0
+        kkt = np.block([[A, n[:, None]], [n[None, :], np.zeros((1, 1))]])
+        return np.linalg.solve(kkt, np.concatenate([-lin.g, [-floor]]))[: len(step)]
+    except np.linalg.LinAlgError:
+        return np.full(len(lin.g), np.nan)
+
+
+def _extend(problem, level, chart, step, cand, cand_value, lin, radius):
+    """Doubling line search along ``step`` beyond an accepted ``cand``: the farthest of 2, 4, 8, ...
+    times the step that still lowers the level's objective and moves the points by at most
+    ``radius``; ``cand`` itself when the first doubling does not pay."""
+    factor = 2.0
+    while factor <= _MAX_EXTENSION and _step_motion_px(lin, factor * step) <= radius:
+        further = chart.retract(factor * step)
+        further_value = _level_value(problem, level, further)
+        if not further_value < cand_value:
+            break
+        cand, cand_value = further, further_value
+        factor *= 2.0
+    return cand, cand_value
+
+
 def solve_fast(problem: Problem, init: PoseDepthParams) -> tuple[PoseDepthParams, list[LevelLog]]:
     """Levenberg-Marquardt on the objective, coarse to fine over the same pyramid (module docstring).
 
     Steps solve ``(H + mu diag(H)) delta = -g`` with the exact gradient g and the Gauss-Newton /
-    IRLS curvature H, shortened so that they move the reprojected points by at most
-    ``fast_step_px`` (95th percentile, px of the level): the objective has degenerate minima far
-    away (every point pushed out of the target leaves no photometric error), and small steps keep
-    to the basin of the start, as the paper's first-order steps do. A step is kept only if it lowers
-    the level's objective (on the selected points), otherwise mu grows. A level ends after
-    ``fast_iterations`` steps, when a step gains less than ``fast_ftol`` (relative), when the
-    quadratic model predicts less than that, or when no damping finds a lower value. A level starts
+    IRLS curvature H (:func:`_lm_step`, which also keeps every depth positive), shortened so that
+    they move the reprojected points by at most a trust radius (95th percentile, px of the level;
+    ``fast_step_px`` at the start of each level, doubled after a cut step the model predicted well,
+    halved after a rejected one): the objective has degenerate minima far away (every point pushed
+    out of the target leaves no photometric error), and bounded steps keep to the basin of the
+    start. A step is kept only if it lowers the level's objective (on the selected points),
+    otherwise mu grows. A level ends after ``fast_iterations`` steps, when a step gains less than
+    ``fast_ftol`` (relative), when the quadratic model predicts less than that, or when no damping
+    finds a lower value. A level starts
     from the initial parameters instead of the carried ones when those are better on it."""
     cfg = problem.cfg
     p = init
@@ -812,10 +866,7 @@ def solve_fast(problem: Problem, init: PoseDepthParams) -> tuple[PoseDepthParams
             diag = np.diag(lin.H).copy()
             diag = np.maximum(diag, 1e-12 * max(float(diag.max()), 1e-300))
             while True:
-                try:
-                    step = np.linalg.solve(lin.H + mu * np.diag(diag), -lin.g)
-                except np.linalg.LinAlgError:
-                    step = np.full(chart.n, np.nan)
+                step = _lm_step(lin, mu * diag, level, p, cfg.use_negd)
                 truncated = False
                 if np.all(np.isfinite(step)):
                     motion = _step_motion_px(lin, step)
@@ -833,10 +884,19 @@ def solve_fast(problem: Problem, init: PoseDepthParams) -> tuple[PoseDepthParams
                     cand_value = math.inf
                 if cand_value < value:
                     gain = (value - cand_value) / max(abs(value), 1e-300)
+                    if truncated and value - cand_value > 0.75 * predicted:  # the model holds: reach further
+                        radius = min(2.0 * radius, _RADIUS_GROWTH * cfg.fast_step_px)
+                    if value - cand_value > predicted:
+                        # Gauss-Newton overrates the curvature here (the objective is flatter than the
+                        # model along the step, e.g. in depth scale): extend the step while it keeps paying.
+                        cand, cand_value = _extend(problem, level, chart, step, cand, cand_value, lin, radius)
+                        gain = (value - cand_value) / max(abs(value), 1e-300)
                     p, value = cand, cand_value
                     mu = max(mu / _LM_DOWN, _LM_MU_MIN)
                     is_conv = not truncated and gain < cfg.fast_ftol
                     break
+                if truncated:
+                    radius = max(0.5 * radius, cfg.fast_step_px / _RADIUS_GROWTH)
                 mu *= _LM_UP
                 if mu > _LM_MU_MAX:
                     is_conv = True
