@@ -18,6 +18,7 @@ whose true focal is ``--ratios`` times the assumed default, filled with and with
 eval`` with the depth stage's result cached per pair, so that every method starts from the same
 depth: the sparse backend (OpenCV's EdgeAwareInterpolator) does not return the same map twice for
 the same input, which would add its noise to the differences between optimisation variants.
+``--starts DIR`` keeps each real pair's start so that separate runs compare the same one.
 ``--paper-scale`` multiplies the paper solver's iteration limits (1 = the paper's
 4000/7000/9000/10000); ``--solvers`` picks the solvers.
 """
@@ -25,6 +26,7 @@ the same input, which would add its noise to the differences between optimisatio
 from __future__ import annotations
 
 import argparse
+import pickle
 import statistics
 import sys
 import time
@@ -64,6 +66,20 @@ def pipeline_start(target, hole, source, cfg: FillConfig) -> Start | None:
     if art.depth is None or art.pose is None or art.pose.status != "ok":
         return None
     return Start(art, art.pose.T, art.depth)
+
+
+def cached_start(pair, cfg: FillConfig, folder: str | None) -> Start | None:
+    """The pipeline start of ``pair`` (brush hole seed 0), kept as a pickle in ``folder`` when given:
+    the sparse depth backend does not return the same map twice, so runs that must compare solvers
+    across processes (e.g. a long paper-solver run and a later fast-solver one) share the file."""
+    path = Path(folder) / f"{pair.id}.pkl" if folder else None
+    if path is not None and path.is_file():
+        return pickle.loads(path.read_bytes())
+    start = pipeline_start(pair.target, pair_mask(pair, 0), pair.source, cfg)
+    if path is not None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_bytes(pickle.dumps(start))
+    return start
 
 
 def run(
@@ -157,21 +173,26 @@ def real(args, cfg: FillConfig) -> None:
     print(f"{'pair':<34s} {'obj0':>12s} " + " ".join(f"{c:>12s}" for c in cols))
     gt_rows = []
     for pair in pairs:
-        hole = pair_mask(pair, 0)
-        start = pipeline_start(pair.target, hole, pair.source, cfg)
+        start = cached_start(pair, cfg, args.starts)
         if start is None:
             print(f"{pair.id:<34s} no usable pose (skipped)")
             continue
         T_gt = pair.meta.get("T_source_to_target")
         gt = None if T_gt is None else np.array(T_gt)
         row = dict(zip(("R0", "t0"), _errors(start.T, gt), strict=True))
-        obj0 = np.nan
+        obj0, flags = np.nan, []
         for solver in args.solvers:
             res, wall, cpu = run(start, cfg, solver, args.paper_scale)
             obj0 = res.report.initial_objective
             row |= dict(zip((f"R_{solver}", f"t_{solver}"), _errors(res.T, gt), strict=True))
-            row |= {f"obj_{solver}": res.report.final_objective, f"wall_{solver}": wall, f"cpu_{solver}": cpu}
-        print(f"{pair.id:<34s} {obj0:12.6e} " + " ".join(_fmt(row[c]) for c in cols), flush=True)
+            rep = res.report  # the objective of the geometry returned (the start's when rejected)
+            obj = rep.final_objective if rep.status == "accepted" else rep.initial_objective
+            row |= {f"obj_{solver}": obj, f"wall_{solver}": wall, f"cpu_{solver}": cpu}
+            flags.append(f"{solver} {rep.status}" if rep.status != "accepted" else "")
+        note = "; ".join(f for f in flags if f)
+        print(
+            f"{pair.id:<34s} {obj0:12.6e} " + " ".join(_fmt(row[c]) for c in cols) + f"  {note}", flush=True
+        )
         if T_gt is not None:
             gt_rows.append(row)
     for name, fn in (("MEAN (GT)", statistics.mean), ("MEDIAN (GT)", statistics.median)):
@@ -249,6 +270,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--ratios", default="0.8,1.25", type=lambda s: [float(x) for x in s.split(",")])
     ap.add_argument("--pairs", default=str(PAIRS))
     ap.add_argument("--only", help="comma-separated pair ids")
+    ap.add_argument("--starts", metavar="DIR", help="real: keep/reuse each pair's start as a pickle here")
     ap.add_argument("--set", action="append", metavar="KEY=VALUE", help="config override (repeatable)")
     args = ap.parse_args(argv)
     cfg = FillConfig().updated(parse_overrides(args.set))

@@ -697,17 +697,19 @@ class _Chart:
         )
 
 
-def _select_points(problem: Problem, level: PhotoLevel, p: PoseDepthParams) -> PhotoLevel:
-    """The level restricted to the source pixels whose reprojection at ``p`` lands where the
-    (margin-grown) weight is at least ``fast_min_weight`` of its maximum."""
+def _select_points(problem: Problem, level: PhotoLevel, *params: PoseDepthParams) -> PhotoLevel:
+    """The level restricted to the source pixels whose reprojection at any of ``params`` lands where
+    the (margin-grown) weight is at least ``fast_min_weight`` of its maximum."""
     cfg = problem.cfg
     if cfg.fast_min_weight <= 0 or not cfg.use_photo:
         return level
+    keep = torch.zeros(len(level.points), dtype=torch.bool)
+    floor = cfg.fast_min_weight * float(level.support.max())
     with torch.no_grad():
-        R, t, s, b, phi = _torch_params(p)
-        x, y = project(R, t, s, b, phi, level.points, level.K_t, problem.space)
-        w = sample_target(level.support, x, y)[0]
-        keep = w >= cfg.fast_min_weight * float(level.support.max())
+        for p in params:
+            R, t, s, b, phi = _torch_params(p)
+            x, y = project(R, t, s, b, phi, level.points, level.K_t, problem.space)
+            keep |= sample_target(level.support, x, y)[0] >= floor
     return level.subset(keep)
 
 
@@ -852,7 +854,8 @@ def solve_fast(problem: Problem, init: PoseDepthParams) -> tuple[PoseDepthParams
     p = init
     logs: list[LevelLog] = []
     for k in reversed(range(len(problem.levels))):
-        level = _select_points(problem, problem.levels[k], p)
+        # Where the carried or the initial parameters land: the level compares both.
+        level = _select_points(problem, problem.levels[k], *((p,) if p is init else (p, init)))
         radius = cfg.fast_step_px
         max_it = cfg.fast_iterations[len(problem.levels) - 1 - k]
         mu = _LM_MU0
