@@ -847,8 +847,8 @@ def solve_fast(problem: Problem, init: PoseDepthParams) -> tuple[PoseDepthParams
     out of the target leaves no photometric error), and bounded steps keep to the basin of the
     start. A step is kept only if it lowers the level's objective (on the selected points),
     otherwise mu grows. A level ends after ``fast_iterations`` steps, when a step gains less than
-    ``fast_ftol`` (relative), when the quadratic model predicts less than that, or when no damping
-    finds a lower value. A level starts
+    ``fast_ftol`` (relative), when a step the model expected less than that from fails, or when no
+    damping finds a lower value. A level starts
     from the initial parameters instead of the carried ones when those are better on it."""
     cfg = problem.cfg
     p = init
@@ -877,10 +877,6 @@ def solve_fast(problem: Problem, init: PoseDepthParams) -> tuple[PoseDepthParams
                         step *= radius / motion
                         truncated = True
                     predicted = -(lin.g @ step + 0.5 * step @ lin.H @ step)
-                    # A step shortened by the trust region says nothing about convergence.
-                    if not truncated and predicted < cfg.fast_ftol * abs(value):
-                        is_conv = True
-                        break
                     cand = chart.retract(step)
                     cand_value = _level_value(problem, level, cand)
                 else:
@@ -900,6 +896,9 @@ def solve_fast(problem: Problem, init: PoseDepthParams) -> tuple[PoseDepthParams
                     break
                 if truncated:
                     radius = max(0.5 * radius, cfg.fast_step_px / _RADIUS_GROWTH)
+                elif np.isfinite(cand_value) and predicted < cfg.fast_ftol * abs(value):
+                    is_conv = True  # a full step the model expected almost nothing from failed
+                    break
                 mu *= _LM_UP
                 if mu > _LM_MU_MAX:
                     is_conv = True
