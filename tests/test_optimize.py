@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -295,6 +296,18 @@ def test_fast_objective_no_worse_than_paper_solver(scene):
     assert fast.report.final_objective <= paper.report.final_objective
     assert fast.report.initial_objective == paper.report.initial_objective
     assert np.linalg.norm(paper.T[:3, 3]) == pytest.approx(1.0)  # renormalised after DiffGrad
+
+
+def test_lm_step_lands_on_the_positive_depth_constraint():
+    # 7 chart coordinates; the gradient pulls the offset b (index 6) down by 1.
+    lin = opt._Linearisation(np.eye(7)[6], np.eye(7), torch.zeros(1, 7), torch.zeros(1, 7))
+    level = SimpleNamespace(value_range=(0.05, 2.0))
+    p = replace(_identity(), t=np.array([1.0, 0, 0]), scale=1.0, offset=0.0)
+    free = opt._lm_step(lin, np.zeros(7), level, p, negd=False)
+    assert free[6] == pytest.approx(-1.0)  # unconstrained: b = -1 makes s v + b < 0
+    step = opt._lm_step(lin, np.zeros(7), level, p, negd=True)
+    floor = (p.scale + step[5]) * 0.05 + p.offset + step[6]
+    assert floor == pytest.approx(0.0, abs=1e-12) and step[6] < 0  # as far as the constraint allows
 
 
 def test_guard_rails():
