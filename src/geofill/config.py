@@ -153,6 +153,76 @@ class DepthConfig:
 
 
 @dataclass
+class OptimizeConfig:
+    """Joint pose-depth optimisation (paper Sec. 3.2 and supplement; :mod:`geofill.optimize`).
+
+    Pixel distances are given at a 1280-px long side (the paper's 1280x720) and scaled with the
+    long side of the optimisation's finest level."""
+
+    enabled: bool = True
+    #: ``fast``: Levenberg-Marquardt on the same objective; ``paper``: DiffGrad, as published.
+    solver: Literal["fast", "paper"] = "fast"
+    #: Weights of L_photo, L_feat and L_negD (paper: 10, 10, 0.5).
+    lambda_photo: float = 10.0
+    lambda_feat: float = 10.0
+    lambda_negd: float = 0.5
+    #: Loss switches (the paper's loss ablation).
+    use_photo: bool = True
+    use_feat: bool = True
+    use_negd: bool = True
+    #: Weight-map switches (the paper's W ablation); both off = uniform weights.
+    use_hole_weight: bool = True
+    use_edge_weight: bool = True
+    #: sigma of the hole-distance weight W_h = exp(-d^2 / 2 sigma^2) (paper: 192 px at 1280x720).
+    hole_sigma_px: float = 192.0
+    #: Gaussian blur kernel sizes before each of the Canny edge maps of W_e (the paper uses 4 maps
+    #: and gives no sizes; odd after scaling).
+    edge_blur_kernels: list[int] = field(default_factory=lambda: [3, 7, 15, 31])
+    #: Canny hysteresis thresholds per blurred image (the paper gives none): the high one is this
+    #: percentile of its gradient magnitude over known pixels, the low one ``canny_low_ratio`` times it
+    #: (fixed thresholds found 0.4 % to 34 % edge pixels on the dev pairs, whatever their contrast).
+    canny_high_percentile: float = 90.0
+    canny_low_ratio: float = 0.4
+    #: Square dilation of each edge map (paper: kernel size 4).
+    edge_dilation_px: int = 4
+    #: Barron's general robust loss for L_feat: shape alpha and scale c (paper: -2 and 10 px).
+    barron_alpha: float = -2.0
+    barron_c_px: float = 10.0
+    #: Gaussian pyramid levels, optimised coarse to fine (paper: 4).
+    pyramid_levels: int = 4
+    #: Long side (px) of the finest level; the working images are downsized to it when larger.
+    max_side: int = 1280
+    #: ``paper`` solver: DiffGrad's constant learning rate (paper: 1e-2).
+    paper_lr: float = 1e-2
+    #: ``paper`` solver: cumulative iteration limits per level, coarse to fine (paper: 4k, 7k, 9k, 10k).
+    paper_iterations: list[int] = field(default_factory=lambda: [4000, 7000, 9000, 10000])
+    #: ``paper`` solver: convergence threshold eps_opt and window m of the supplement's test.
+    paper_eps: float = 1e-6
+    paper_window: int = 10
+    #: ``fast`` solver: Levenberg-Marquardt iterations per level, coarse to fine.
+    fast_iterations: list[int] = field(default_factory=lambda: [30, 20, 12, 8])
+    #: ``fast`` solver: a level stops when an accepted step lowers the objective by less than this
+    #: (relative).
+    fast_ftol: float = 1e-6
+    #: ``fast`` solver: largest step, as the 95th percentile of the motion it gives the reprojected
+    #: points, in px of the pyramid level being solved (a trust region).
+    fast_step_px: float = 4.0
+    #: ``fast`` solver: photometric residuals only on source pixels whose reprojection lands where W
+    #: (max-filtered by ``fast_margin_px``) is at least this fraction of its maximum; 0 = all pixels.
+    fast_min_weight: float = 1e-3
+    #: ``fast`` solver: margin (px at each level) around the weighted area kept in that set.
+    fast_margin_px: int = 1
+    #: torch intra-op threads while optimising (restored afterwards). The work is many small
+    #: memory-bound operations: 2 threads were 13x slower than 1 with the 2 cores shared by other jobs.
+    threads: int = 1
+    #: Refine a focal scale shared by both images as an extra parameter (issue 7); off = the paper.
+    refine_focal: bool = False
+    #: Weak prior on the log focal scale phi: ``w * l0 * phi^2`` with l0 the initial objective, so a
+    #: focal change by a factor e costs ``w`` times the initial objective.
+    focal_prior_weight: float = 0.01
+
+
+@dataclass
 class RenderConfig:
     """Rendering the source into the target view."""
 
@@ -225,6 +295,7 @@ class FillConfig:
     matching: MatchingConfig = field(default_factory=MatchingConfig)
     geometry: GeometryConfig = field(default_factory=GeometryConfig)
     depth: DepthConfig = field(default_factory=DepthConfig)
+    optimize: OptimizeConfig = field(default_factory=OptimizeConfig)
     render: RenderConfig = field(default_factory=RenderConfig)
     inpaint: InpaintConfig = field(default_factory=InpaintConfig)
     refine: RefineConfig = field(default_factory=RefineConfig)

@@ -25,6 +25,7 @@ from .intrinsics import ExifLens, resolve_intrinsics
 from .io import as_rgb_uint8, validate_pair
 from .matching import Matches, match_pair
 from .merge import merge_fill
+from .optimize import OptimizationResult, optimize_pose_depth
 from .pose import PoseEstimate, estimate_pose
 from .progress import Progress
 from .refine import RefinedRender, refine_render
@@ -75,6 +76,7 @@ class FillReport:
     hole_coverage: float = 0.0  # fraction of hole pixels the rendered source supplies
     refine: dict[str, Any] = field(default_factory=dict)  # geofill.refine.RefineInfo
     inpaint_method: str = ""  # single-image inpainter used, and why (geofill.inpaint)
+    optimization: dict[str, Any] = field(default_factory=dict)  # OptimizationReport (optimize stage)
     timings_s: dict[str, float] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
@@ -94,6 +96,7 @@ class FillArtifacts:
     pose: PoseEstimate | None = None
     points: TriangulatedPoints | None = None
     depth: AlignedDepth | None = None
+    optimization: OptimizationResult | None = None  # the pose/depth/intrinsics the render used
     render: RenderResult | None = None
     warped: np.ndarray | None = None  # HxWx3 uint8 rendered source at target resolution
     refined: RefinedRender | None = None
@@ -306,14 +309,34 @@ def _reference_fill(target, hole, source, cfg, target_exif, source_exif, prog, r
             )
         depth_s = depth.depth
 
+    # --- joint pose-depth optimisation (issue 5): refines pose.T, the depth and optionally the focal
+    T, K_tw, K_sw = pose.T, views.K_target, views.K_source
+    if cfg.optimize.enabled and pose.status == "ok":
+        with prog.stage("optimize") as notes:
+            inl = pose.inliers
+            opt = optimize_pose_depth(
+                views.target, views.hole, views.source, K_tw, K_sw, T, depth,
+                matches.pts_target[inl], matches.pts_source[inl], cfg.optimize,
+            )  # fmt: skip
+            art.optimization = opt
+            report.optimization = opt.report.to_dict()
+            notes.append(opt.report.summary())
+            if opt.report.status == "rejected":
+                report.fallbacks.append(f"optimisation rejected, initial geometry kept: {opt.report.reason}")
+            T, K_tw, K_sw, depth_s = opt.T, opt.K_target, opt.K_source, opt.depth.depth
+            if K_tw.origin == "refined":
+                report.intrinsics_target = K_tw.resized(target.shape[1], target.shape[0]).to_json()
+                report.intrinsics_source = K_sw.resized(source.shape[1], source.shape[0]).to_json()
+    # --- end of optimisation
+
     with prog.stage("render") as notes:
         H, W = target.shape[:2]
-        K_t = views.K_target.resized(W, H)
-        K_s = views.K_source.resized(source.shape[1], source.shape[0])
+        K_t = K_tw.resized(W, H)
+        K_s = K_sw.resized(source.shape[1], source.shape[0])
         if depth_s.shape != (K_s.height, K_s.width):
             depth_s = cv2.resize(depth_s, (K_s.width, K_s.height), interpolation=cv2.INTER_LINEAR)
         roi = render_roi(hole, int(RENDER_MARGIN_PX * max(H, W) / 1280))
-        rendered = render_mesh(depth_s, K_s, K_t, pose.T, cfg.render.edge_threshold, roi)
+        rendered = render_mesh(depth_s, K_s, K_t, T, cfg.render.edge_threshold, roi)
         art.render = rendered
         warped = rendered.sample(source)
         art.warped = warped

@@ -106,6 +106,16 @@ GEOFILL_VARIANTS: dict[str, dict[str, Any]] = {
     "geofill_global": {"refine.colour": "global"},
     "geofill_gain": {"refine.colour": "gain"},
     "geofill_poisson": {"refine.colour": "poisson"},
+    # Joint optimisation (issue 5): off, the paper's solver, and the paper's loss / W ablations.
+    "geofill_init": {"optimize.enabled": False},
+    "geofill_paper": {"optimize.solver": "paper"},
+    "geofill_no_photo": {"optimize.use_photo": False},
+    "geofill_no_feat": {"optimize.use_feat": False},
+    "geofill_no_negd": {"optimize.use_negd": False},
+    "geofill_no_hole_w": {"optimize.use_hole_weight": False},
+    "geofill_no_edge_w": {"optimize.use_edge_weight": False},
+    "geofill_uniform_w": {"optimize.use_hole_weight": False, "optimize.use_edge_weight": False},
+    "geofill_refine_focal": {"optimize.refine_focal": True},
 }
 #: Depth backends (issue 4): the weight-free ones by name (``auto`` is ``geofill`` itself).
 GEOFILL_VARIANTS.update({f"geofill_{b}": {"depth.backend": b} for b in ("sparse", "stereo", "fused")})
@@ -126,6 +136,7 @@ def geofill_method(cfg: FillConfig) -> Method:
             "pose_status": r.pose_status,
             "n_pose_inliers": r.n_pose_inliers,
             "hole_coverage": round(r.hole_coverage, 4),
+            "optimize": ": ".join(filter(None, (r.optimization.get(k, "") for k in ("status", "reason")))),
         }
         return MethodOutput(res.image, dict(r.timings_s), info)
 
