@@ -42,6 +42,14 @@ def test_outside_hole_is_byte_identical(pair, result):
     assert np.array_equal(result.image[~pair.hole], pair.target[~pair.hole])
 
 
+def test_hole_content_does_not_steer_the_fill(pair, result):
+    # The hole holds the object being removed: a noisy object there must give the same fill.
+    target = pair.target.copy()
+    rng = np.random.default_rng(1)
+    target[pair.hole] = rng.integers(0, 256, (int(pair.hole.sum()), 3), dtype=np.uint8)
+    assert np.array_equal(fill(target, pair.hole, pair.source).image, result.image)
+
+
 def test_report_has_stage_timings_and_geometry(pair, result):
     r = result.report
     for stage in ("check inputs", "match", "focal", "pose", "triangulate", "depth", "render", "composite"):
