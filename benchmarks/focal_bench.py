@@ -1,7 +1,7 @@
 """Focal-length estimation (issue 7): accuracy of each method, its effect on the pose and on the fill.
 
     .venv/bin/python benchmarks/focal_bench.py [--pairs ../shared/data/pairs] [--seeds 3]
-                                               [--skip-synthetic] [--skip-psnr] [--eval-out DIR]
+                                               [--skip-synthetic] [--skip-psnr] [--psnr-seeds 0,1,2]
 
 1. Real pairs with ground-truth K (meta.json K_target): true focal, the default prior, each
    method's estimate (intrinsics.estimate = none / search / bougnoux / auto) with its focal error,
@@ -11,12 +11,13 @@
 2. Rendered scenes (geofill.synthetic): orbits of 0.5 and 1 unit (4.8 / 9.5 deg of vergence),
    landscape and portrait, true focal 0.5x / 1x / 2x the default, ``--seeds`` seeds each; and the
    degenerate motions (sideways, forward, pure rotation), where the prior must be kept.
-3. Hole PSNR with ``geofill eval``'s masks (seed 0) on every pair for the fixed focal
-   (``geofill_fixed_focal`` = ``--set intrinsics.estimate=none``), the default config (estimated)
-   and, where meta.json has it, the true K given as calibration flags. With ``--eval-out`` the
-   first two run through ``geofill eval``'s runner itself (same numbers, plus its files).
+3. Whole fills with ``geofill eval``'s masks on every pair: hole PSNR for the fixed focal
+   (``geofill_fixed_focal``), the estimate (default), the estimate refined by the joint
+   optimisation (``optimize.refine_focal``, ``geofill_refine_focal``), the true K given as
+   calibration flags where meta.json has it, and the fixed focal x0.98 / x1.02 (the fill's
+   sensitivity to a 2 % focal change). Then, on the GT pairs, the focal error and pose errors of
+   the geometry the render used (after the optimisation) for the same configurations.
 
-The optimiser's focal refinement (issue 5, ``optimize.refine_focal``) is not measured here.
 Timings are wall-clock on this machine. Figures, not a test.
 """
 
@@ -34,7 +35,7 @@ import numpy as np
 from geofill.camera import Intrinsics, default_focal_px, pose_errors_deg
 from geofill.config import FillConfig
 from geofill.evaluation.metrics import psnr
-from geofill.evaluation.runner import load_pairs, pair_mask, run_eval
+from geofill.evaluation.runner import load_pairs, pair_mask
 from geofill.focal import estimate_focal
 from geofill.matching import match_pair
 from geofill.pipeline import fill, prepare
@@ -51,14 +52,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seeds", type=int, default=3, help="synthetic seeds per configuration")
     ap.add_argument("--skip-synthetic", action="store_true")
     ap.add_argument("--skip-psnr", action="store_true", help="skip the hole-PSNR comparison (slow)")
-    ap.add_argument("--eval-out", help="run the fixed/estimated PSNR through geofill eval, writing it here")
+    ap.add_argument("--psnr-seeds", default="0", help="comma-separated mask seeds of the PSNR comparison")
     args = ap.parse_args(argv)
     pairs = load_pairs([args.pairs])
     real_pairs(pairs)
     if not args.skip_synthetic:
         synthetic(args.seeds)
     if not args.skip_psnr:
-        hole_psnr(pairs, args.eval_out)
+        hole_psnr(pairs, [int(x) for x in args.psnr_seeds.split(",")])
     return 0
 
 
@@ -181,50 +182,115 @@ def synthetic(seeds: int) -> None:
     print("(estimated: focal moved; otherwise the prior was kept and its error counts in <5%)\n")
 
 
-def hole_psnr(pairs, out_dir: str | None) -> None:
-    """Hole PSNR with the evaluation's masks for the fixed focal, the estimate and (where meta.json
-    has it) the true K. With ``out_dir``, the first two come from ``geofill eval``'s own runner."""
-    print("== Hole PSNR (geofill eval protocol, seed 0): fixed focal, estimated (default), true K")
-    fixed_cfg = CFG.updated({"intrinsics.estimate": "none"})
-    scores: dict[str, dict[str, float]] = {}
-    if out_dir:
-        for r in run_eval(pairs, ["geofill_fixed_focal", "geofill"], out_dir, contact_sheets=False):
-            scores.setdefault(r.pair, {})[r.method] = r.psnr_hole if r.psnr_hole is not None else float("nan")
-    print(f"{'pair':<34s} {'fixed':>7s} {'estim.':>7s} {'delta':>7s} {'true K':>7s} {'delta':>7s}")
-    deltas, deltas_true = [], []
+def _final_geometry(res):
+    """Working-resolution target intrinsics and pose the render used (after the optimisation)."""
+    art = res.artifacts
+    if art.optimization is not None:
+        return art.optimization.K_target, art.optimization.T
+    return art.focal.K_target, art.pose.T
+
+
+def hole_psnr(pairs, seeds: list[int]) -> None:
+    """Whole fills with the evaluation's masks: the fixed default focal, the estimate (default),
+    the estimate refined by the optimisation, the true K where meta.json has it, and the fixed focal
+    scaled by 0.98 / 1.02 (how much the fill moves for a 2 % focal change: the noise floor of any
+    per-pair comparison)."""
+    print(
+        f"== Hole PSNR (geofill eval masks, seeds {','.join(map(str, seeds))}, mean over seeds): fixed "
+        "focal, estimated (default), refined (optimize.refine_focal), true K; fixed focal x0.98 / x1.02"
+    )
+    configs = {
+        "fixed": CFG.updated({"intrinsics.estimate": "none", "intrinsics.use_exif": False}),
+        "estim.": CFG,
+        "refined": CFG.updated({"optimize.refine_focal": True}),
+    }
+    cols = (*configs, "true K", "x0.98", "x1.02")
+    head = f"{'pair':<34s}" + "".join(f" {c:>7s}" for c in cols)
+    print(head + f" {'est-fix':>7s} {'ref-fix':>7s} {'jitter':>6s}")
+    table: dict[str, dict[str, float]] = {}
+    geometry: dict[str, dict[str, tuple]] = {}
     for pair in pairs:
-        hole = pair_mask(pair, 0)
-        target = pair.target.copy()
-        target[hole] = 0
-        v = scores.setdefault(pair.id, {})
-        if "geofill" not in v:
-            v["geofill_fixed_focal"] = psnr(
-                fill(target, hole, pair.source, fixed_cfg).image, pair.target, hole
-            )
-            v["geofill"] = psnr(fill(target, hole, pair.source, CFG).image, pair.target, hole)
-        d = v["geofill"] - v["geofill_fixed_focal"]
-        deltas.append(d)
-        line = f"{pair.id:<34s} {v['geofill_fixed_focal']:7.2f} {v['geofill']:7.2f} {d:+7.2f}"
+        cfgs = dict(configs)
+        f0 = default_focal_px(*pair.target.shape[1::-1])
         if pair.meta.get("K_target") is not None:
             K_t, K_s = (np.array(pair.meta[k]) for k in ("K_target", "K_source"))
-            true_cfg = CFG.updated(
+            cfgs["true K"] = CFG.updated(
                 {
                     "intrinsics.target": [K_t[0, 0], K_t[1, 1], K_t[0, 2], K_t[1, 2]],
                     "intrinsics.source": [K_s[0, 0], K_s[1, 1], K_s[0, 2], K_s[1, 2]],
                 }
             )
-            p_true = psnr(fill(target, hole, pair.source, true_cfg).image, pair.target, hole)
-            deltas_true.append(p_true - v["geofill_fixed_focal"])
-            line += f" {p_true:7.2f} {deltas_true[-1]:+7.2f}"
-        print(line + ("  <-- estimate worse by > 0.3 dB" if d < -0.3 else ""), flush=True)
-    fixed = [v["geofill_fixed_focal"] for v in scores.values()]
-    estim = [v["geofill"] for v in scores.values()]
+        if default_focal_px(*pair.source.shape[1::-1]) == f0:  # one focal_px fits both images
+            for k in (0.98, 1.02):
+                fixed_k = {
+                    "intrinsics.estimate": "none",
+                    "intrinsics.use_exif": False,
+                    "intrinsics.focal_px": f0 * k,
+                }
+                cfgs[f"x{k:.2f}"] = CFG.updated(fixed_k)
+        row: dict[str, list[float]] = {}
+        for seed in seeds:
+            hole = pair_mask(pair, seed)
+            for name, cfg in cfgs.items():
+                res = fill(
+                    pair.target,
+                    hole,
+                    pair.source,
+                    cfg,
+                    target_exif=pair.exif.target,
+                    source_exif=pair.exif.source,
+                )
+                row.setdefault(name, []).append(psnr(res.image, pair.target, hole))
+                if seed == seeds[0] and pair.meta.get("K_target") is not None:
+                    geometry.setdefault(pair.id, {})[name] = _final_geometry(res)
+        v = table[pair.id] = {k: float(np.mean(x)) for k, x in row.items()}
+        line = f"{pair.id:<34s}" + "".join(f" {v[c]:7.2f}" if c in v else f" {'-':>7s}" for c in cols)
+        jitter = abs(v["x1.02"] - v["x0.98"]) if "x1.02" in v else float("nan")
+        line += f" {v['estim.'] - v['fixed']:+7.2f} {v['refined'] - v['fixed']:+7.2f} {jitter:6.2f}"
+        worse = v["estim."] - v["fixed"] < -0.3
+        print(line + ("  <-- estimate worse by > 0.3 dB" if worse else ""), flush=True)
+    for c in cols:
+        got = [v[c] for v in table.values() if c in v]
+        print(f"{c:<8s} mean {np.mean(got):.2f} dB, median {np.median(got):.2f} dB over {len(got)} pairs")
+    for c in ("estim.", "refined", "true K"):
+        d = [v[c] - v["fixed"] for v in table.values() if c in v]
+        print(
+            f"{c:<8s} vs fixed: worse by > 0.3 dB on {sum(x < -0.3 for x in d)}/{len(d)} pairs, "
+            f"better by > 0.3 dB on {sum(x > 0.3 for x in d)}"
+        )
+    jit = [abs(v["x1.02"] - v["x0.98"]) for v in table.values() if "x1.02" in v]
     print(
-        f"mean {np.mean(fixed):.2f} -> {np.mean(estim):.2f} dB, median {np.median(fixed):.2f} -> "
-        f"{np.median(estim):.2f} dB; estimate worse by > 0.3 dB on {sum(d < -0.3 for d in deltas)}/"
-        f"{len(deltas)} pairs; true K worse than the fixed focal by > 0.3 dB on "
-        f"{sum(d < -0.3 for d in deltas_true)}/{len(deltas_true)} pairs"
+        f"|PSNR(x1.02) - PSNR(x0.98)| of the fixed focal: median {np.median(jit):.2f} dB, "
+        f"max {max(jit):.2f} dB over {len(jit)} pairs"
     )
+
+    print(
+        f"\n== After the joint optimisation (seed {seeds[0]}): target focal error (%) and pose "
+        "errors R/t (deg) of the geometry the render used"
+    )
+    names = ("fixed", "estim.", "refined", "true K")
+    print(f"{'pair':<34s}" + "".join(f" {n:>21s}" for n in names))
+    errs: dict[str, list[tuple[float, float, float]]] = {n: [] for n in names}
+    for pair in pairs:
+        if pair.id not in geometry:
+            continue
+        K_gt = Intrinsics.from_matrix(np.array(pair.meta["K_target"]), *pair.target.shape[1::-1])
+        T_gt = pair.meta.get("T_source_to_target")
+        line = f"{pair.id:<34s}"
+        for n in names:
+            K, T = geometry[pair.id][n]
+            fe = 100 * (K.fx / K_gt.resized(K.width, K.height).fx - 1)
+            r, t = pose_errors_deg(T, np.array(T_gt)) if T_gt is not None else (float("nan"), float("nan"))
+            if T_gt is not None:
+                errs[n].append((abs(fe), r, t))
+            line += f" {fe:+6.1f}% {r:5.2f}/{t:6.2f}"
+        print(line, flush=True)
+    for n in names:
+        f, r, t = zip(*errs[n], strict=True)
+        print(
+            f"{n:<8s} ({len(r)} GT-pose pairs) median |focal err| {np.median(f):.1f}%, "
+            f"R {np.median(r):.2f} deg, t {np.median(t):.2f} deg; mean R {np.mean(r):.2f}, t {np.mean(t):.2f}"
+        )
 
 
 if __name__ == "__main__":

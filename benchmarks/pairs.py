@@ -37,7 +37,9 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
     for pair in pairs:
         hole = pair_mask(pair, args.seed)
-        res = fill(pair.target, hole, pair.source, cfg)
+        res = fill(
+            pair.target, hole, pair.source, cfg, target_exif=pair.exif.target, source_exif=pair.exif.source
+        )
         r = res.report
         T_gt = pair.meta.get("T_source_to_target")
         r_err, t_err = (

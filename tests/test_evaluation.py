@@ -12,6 +12,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from PIL import ExifTags, Image
 from skimage import data
 from skimage.morphology import skeletonize
 
@@ -399,7 +400,7 @@ def test_homography_baseline_refuses_a_pair_without_matches():
 # Runner
 
 
-def _broken(target, hole, source) -> MethodOutput:
+def _broken(target, hole, source, exif) -> MethodOutput:
     raise RuntimeError("deliberate failure")
 
 
@@ -465,7 +466,7 @@ def test_run_eval_scores_lpips_with_a_model(tmp_path):
 
 
 def test_methods_must_return_a_full_uint8_image(tmp_path):
-    def wrong_size(target, hole, source):
+    def wrong_size(target, hole, source, exif):
         return MethodOutput(target[:10])
 
     (row,) = run_eval(planar_pairs(1), {"wrong": wrong_size}, tmp_path, contact_sheets=False)
@@ -529,6 +530,34 @@ def test_cli_runs_on_a_folder_of_pairs(tmp_path):
     assert row["pair"] == "planar_0" and row["kind"] == "synthetic0" and row["error"] == ""
     hole = cv2.imread(str(tmp_path / "out" / "masks" / "planar_0.png"), cv2.IMREAD_GRAYSCALE) > 0
     assert np.array_equal(hole, brush_stroke_mask(240, 320, seed=mask_seed("planar_0", 3)))
+
+
+def test_pair_exif_reaches_the_methods(tmp_path):
+    # A user's files carry EXIF; the evaluation must give it to geofill as the CLI does.
+    p = planar_pairs(1)[0]
+    _write_pair_folder(tmp_path / "pairs" / p.id, p)
+    exif = Image.Exif()
+    exif[ExifTags.IFD.Exif] = {ExifTags.Base.FocalLengthIn35mmFilm: 52}
+    Image.fromarray(p.target).save(tmp_path / "pairs" / p.id / "target.jpg", exif=exif, quality=95)
+    (tmp_path / "pairs" / p.id / "target.png").unlink()
+    (pair,) = load_pairs([tmp_path / "pairs"])
+    assert pair.exif.target.focal_35mm == 52 and pair.exif.source.focal_35mm is None
+    seen = []
+
+    def spy(target, hole, source, exif):
+        seen.append(exif)
+        return MethodOutput(target)
+
+    methods = {"spy": spy, **resolve_methods(["geofill_fixed_focal"])}
+    _, geo_row = run_eval([pair], methods, tmp_path / "out", contact_sheets=False)
+    assert seen == [pair.exif]
+    # The EXIF focal (52 mm of a 43.27 mm diagonal) is the target's; geofill_fixed_focal ignores
+    # EXIF by design (the paper's 750 px at a 1280-px long side), so compare with geofill proper.
+    (row,) = run_eval([pair], resolve_methods(["geofill"]), tmp_path / "out2", contact_sheets=False)
+    assert row.info["focal_origin"] == "exif"
+    assert row.info["focal_px"] == pytest.approx(52 / 43.27 * 400, rel=0.01)
+    assert geo_row.info["focal_origin"] == "default"
+    assert geo_row.info["focal_px"] == pytest.approx(750 * 320 / 1280, rel=0.01)
 
 
 def test_cli_reports_bad_input(tmp_path, capsys):

@@ -6,7 +6,17 @@
 from .baselines import BaselineError, homography_fill, opencv_inpaint
 from .masks import brush_stroke_mask, brush_strokes, mask_seed
 from .metrics import lpips_available, psnr, ssim
-from .runner import METHODS, EvalRow, MethodOutput, Pair, load_pairs, register_method, run_eval, sweep
+from .runner import (
+    METHODS,
+    EvalRow,
+    MethodOutput,
+    Pair,
+    PairExif,
+    load_pairs,
+    register_method,
+    run_eval,
+    sweep,
+)
 
 __all__ = [
     "METHODS",
@@ -14,6 +24,7 @@ __all__ = [
     "EvalRow",
     "MethodOutput",
     "Pair",
+    "PairExif",
     "brush_stroke_mask",
     "brush_strokes",
     "homography_fill",

@@ -1,8 +1,9 @@
 """The evaluation protocol: cut a brush-stroke hole into each pair's target, run every method on the
 same masked target, score against the original target, and write the tables and pictures.
 
-A method is any ``(target, hole, source) -> MethodOutput`` callable registered under a name; the
-target it receives has its hole pixels zeroed, so no method can see the ground truth. Its output
+A method is any ``(target, hole, source, exif) -> MethodOutput`` callable registered under a name;
+the target it receives has its hole pixels zeroed, so no method can see the ground truth, and
+``exif`` holds the images' EXIF lens data (what the CLI would read from the same files). Its output
 is composited (its pixels inside the hole, the target's outside) before scoring, as in the papers.
 A method that raises is recorded with its error and the run goes on.
 
@@ -30,7 +31,7 @@ import numpy as np
 
 from ..config import FillConfig
 from ..errors import ConfigError, InputError, MissingFileError
-from ..io import read_image
+from ..io import ExifCamera, read_image
 from .baselines import homography_fill_detailed, opencv_inpaint
 from .masks import (
     DEFAULT_AREA_RANGE,
@@ -53,8 +54,16 @@ class MethodOutput:
     info: dict[str, Any] = field(default_factory=dict)
 
 
-#: ``method(masked_target, hole, source) -> MethodOutput``; uint8 RGB images, bool hole.
-Method = Callable[[np.ndarray, np.ndarray, np.ndarray], MethodOutput]
+@dataclass(frozen=True)
+class PairExif:
+    """EXIF lens data of a pair's images (None: no file, e.g. synthetic pairs)."""
+
+    target: ExifCamera | None = None
+    source: ExifCamera | None = None
+
+
+#: ``method(masked_target, hole, source, exif) -> MethodOutput``; uint8 RGB images, bool hole.
+Method = Callable[[np.ndarray, np.ndarray, np.ndarray, PairExif], MethodOutput]
 
 #: Methods selectable by name (``--methods``).
 METHODS: dict[str, Method] = {}
@@ -71,13 +80,15 @@ def register_method(name: str, method: Method, *, replace: bool = False) -> None
     METHODS[name] = method
 
 
-def _opencv_method(target: np.ndarray, hole: np.ndarray, source: np.ndarray) -> MethodOutput:
+def _opencv_method(target: np.ndarray, hole: np.ndarray, source: np.ndarray, exif: PairExif) -> MethodOutput:
     t0 = time.perf_counter()
     image = opencv_inpaint(target, hole)
     return MethodOutput(image, {"total": time.perf_counter() - t0})
 
 
-def _homography_method(target: np.ndarray, hole: np.ndarray, source: np.ndarray) -> MethodOutput:
+def _homography_method(
+    target: np.ndarray, hole: np.ndarray, source: np.ndarray, exif: PairExif
+) -> MethodOutput:
     t0 = time.perf_counter()
     fill = homography_fill_detailed(target, hole, source)
     info = {
@@ -95,8 +106,8 @@ register_method("homography", _homography_method)
 #: (``geofill eval --config/--set``). The paper's ablations are entries here.
 GEOFILL_VARIANTS: dict[str, dict[str, Any]] = {
     "geofill": {},
-    # The paper's fixed focal (prior kept: flag, EXIF or 750 px at a 1280-px long side); issue 7.
-    "geofill_fixed_focal": {"intrinsics.estimate": "none"},
+    # The paper's fixed focal: 750 px at a 1280-px long side, EXIF ignored, nothing estimated (issue 7).
+    "geofill_fixed_focal": {"intrinsics.estimate": "none", "intrinsics.use_exif": False},
     # Refinement and merge (issue 6): the render pasted as is; flow only; colour only; colour +
     # residual flow (the default); and each colour model with the flow.
     "geofill_no_refine": {"refine.colour": "none", "refine.flow": False, "refine.feather_px": 0.0},
@@ -127,8 +138,8 @@ def geofill_method(cfg: FillConfig) -> Method:
     """The full pipeline with ``cfg`` as an evaluation method."""
     from ..pipeline import fill
 
-    def run(target: np.ndarray, hole: np.ndarray, source: np.ndarray) -> MethodOutput:
-        res = fill(target, hole, source, cfg)
+    def run(target: np.ndarray, hole: np.ndarray, source: np.ndarray, exif: PairExif) -> MethodOutput:
+        res = fill(target, hole, source, cfg, target_exif=exif.target, source_exif=exif.source)
         r = res.report
         info = {
             "status": r.status,
@@ -136,6 +147,8 @@ def geofill_method(cfg: FillConfig) -> Method:
             "pose_status": r.pose_status,
             "n_pose_inliers": r.n_pose_inliers,
             "hole_coverage": round(r.hole_coverage, 4),
+            "focal_px": round(float(r.intrinsics_target.get("fx_px", math.nan)), 1),
+            "focal_origin": r.intrinsics_target.get("origin"),
             "optimize": ": ".join(filter(None, (r.optimization.get(k, "") for k in ("status", "reason")))),
         }
         return MethodOutput(res.image, dict(r.timings_s), info)
@@ -176,6 +189,7 @@ class Pair:
     source: np.ndarray
     meta: dict[str, Any]
     path: Path | None
+    exif: PairExif = PairExif()
 
 
 _IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
@@ -198,13 +212,14 @@ def load_pair(folder: str | Path) -> Pair:
         path = _find_image(folder, stem)
         if path is None:
             raise MissingFileError(f"pair folder {folder} has no {stem}.png/.jpg")
-        images[stem] = read_image(path, min_side=_MIN_SIDE_PX).pixels
+        images[stem] = read_image(path, min_side=_MIN_SIDE_PX)
     meta_path = folder / "meta.json"
     try:
         meta = json.loads(meta_path.read_text()) if meta_path.is_file() else {}
     except json.JSONDecodeError as exc:
         raise InputError(f"{meta_path} is not valid JSON: {exc}") from exc
-    return Pair(folder.name, images["target"], images["source"], meta, folder)
+    t, s = images["target"], images["source"]
+    return Pair(folder.name, t.pixels, s.pixels, meta, folder, PairExif(t.exif, s.exif))
 
 
 def synthetic_pairs(n: int) -> list[Pair]:
@@ -314,10 +329,11 @@ def _error_text(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {exc}".replace("\n", " ")
 
 
-def _run_method(method: Method, target: np.ndarray, hole: np.ndarray, source: np.ndarray) -> MethodOutput:
+def _run_method(method: Method, pair: Pair, hole: np.ndarray) -> MethodOutput:
+    target = pair.target
     masked = target.copy()
     masked[hole] = 0
-    out = method(masked, hole.copy(), source.copy())
+    out = method(masked, hole.copy(), pair.source.copy(), pair.exif)
     if not isinstance(out, MethodOutput):
         raise TypeError(f"method returned {type(out).__name__}, not MethodOutput")
     if out.image.dtype != np.uint8 or out.image.shape != target.shape:
@@ -353,7 +369,7 @@ def _evaluate_pair(
         image = None
         t0 = time.perf_counter()
         try:
-            out = _run_method(method, pair.target, hole.mask, pair.source)
+            out = _run_method(method, pair, hole.mask)
             row.time_s = time.perf_counter() - t0
             image = np.where(hole.mask[..., None], out.image, pair.target)
             row.timings, row.info = dict(out.timings), dict(out.info)
