@@ -104,6 +104,82 @@ SECTIONS = [
         "metric depth, aligned by the pipeline's own triangulated points, with the true intrinsics.",
         [PY, "benchmarks/depth_fit_space.py"],
     ),
+    Section(
+        "depth_eval",
+        "Depth accuracy per backend (`benchmarks/depth_eval.py`, issue 4)",
+        "The paper's supplement depth table: AbsRel, RMS-log and delta<1.25 of the source depth the pipeline "
+        "renders with (after its own scale/offset), over all valid pixels and over those that project into "
+        "the hole; synthetic scenes (exact depth) and the real pairs with GT depth. `onnx`/`fused` need "
+        "weights, which these machines cannot download: reported as unavailable.",
+        [PY, "benchmarks/depth_eval.py"],
+    ),
+    Section(
+        "depth_backends",
+        "Fill quality per depth backend (`geofill eval`, issue 4)",
+        "`geofill` = `auto` (here: stereo, no weights); `geofill_fused` fails without weights and is "
+        "recorded as failed, not skipped.",
+        _eval("{out}", "--methods", "homography,geofill_sparse,geofill_stereo,geofill_fused,geofill"),
+        "summary.md",
+    ),
+    Section(
+        "stereo_speed",
+        "Stereo backend time at 1280x720 (`benchmarks/stereo_speed.py`, issue 4)",
+        "Budget: 2 s on this 2-core machine.",
+        [PY, "benchmarks/stereo_speed.py"],
+    ),
+    Section(
+        "optimize_synthetic",
+        "Joint optimisation from a perturbed start, 1280x720 (`benchmarks/optimize_bench.py`, issue 5)",
+        "Exact depth and pose, start perturbed by 5 deg rotation, 10 deg translation direction, depth x1.2. "
+        "`paper` = DiffGrad at a quarter of the paper's iteration limits (1000/1750/2250/2500; the full "
+        "limits take up to an hour on one scene here). Objective = the finest level's (lower is better).",
+        [PY, "benchmarks/optimize_bench.py", "synthetic", "--scenes", "3", "--paper-scale", "0.25"],
+    ),
+    Section(
+        "optimize_real",
+        "Joint optimisation on the real pairs (`benchmarks/optimize_bench.py real`, issue 5)",
+        "Both solvers from the pipeline's own start (evaluation hole, seed 0); `paper` at a tenth of its "
+        "iteration limits. Pose errors against the GT pose where meta.json has one (before = the start).",
+        [PY, "benchmarks/optimize_bench.py", "real", "--paper-scale", "0.1"],
+    ),
+    Section(
+        "optimize_eval",
+        "Optimisation variants and the paper's ablations (`geofill eval`, issue 5)",
+        "Same depth for every method (`optimize_bench.py eval` memoises the depth stage per pair). "
+        "`geofill_paper` at a tenth of the paper's iteration limits. The paper's own numbers (RealEstate10K, "
+        "with CST, whole-image PSNR): init 30.66, optimised 31.47; without L_photo / L_feat / L_negD 31.19 / "
+        "30.88 / 31.23; W_h only 31.20, W_e only 31.12, neither 30.95.",
+        [
+            PY,
+            "benchmarks/optimize_bench.py",
+            "eval",
+            "--pairs",
+            str(PAIRS),
+            "--out",
+            "{out}",
+            "--methods",
+            "geofill_init,geofill,geofill_paper,geofill_no_photo,geofill_no_feat,geofill_no_negd,"
+            "geofill_no_hole_w,geofill_no_edge_w,geofill_uniform_w,geofill_refine_focal",
+            "--set",
+            "optimize.paper_iterations=[400,700,900,1000]",
+        ],
+        "summary.md",
+    ),
+    Section(
+        "focal",
+        "Focal length from the pair (`benchmarks/focal_bench.py`, issue 7)",
+        "Focal and pose accuracy per estimator on the GT pairs and rendered scenes, then whole fills with "
+        "the evaluation's masks (seeds 0-2): fixed focal, estimated (default), refined in the "
+        "optimisation, true K, and the fixed focal x0.98 / x1.02 (how much a 2 % focal change moves a fill).",
+        [PY, "benchmarks/focal_bench.py", "--psnr-seeds", "0,1,2"],
+    ),
+    Section(
+        "focal_refine",
+        "Focal refinement in the optimisation, synthetic (`benchmarks/optimize_bench.py focal`, issue 7)",
+        "Rendered scenes whose true focal is 0.8x / 1.25x the assumed default, filled with and without "
+        "`optimize.refine_focal` (estimation off, so the refinement alone moves the focal).",
+        [PY, "benchmarks/optimize_bench.py", "focal", "--scenes", "3", "--set", "intrinsics.estimate=none"],
+    ),
 ]
 
 
@@ -133,7 +209,21 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--only", help="comma-separated section names: " + ",".join(s.name for s in SECTIONS))
     args = ap.parse_args(argv)
-    wanted = set(args.only.split(",")) if args.only else {s.name for s in SECTIONS}
+    wanted = args.only.split(",") if args.only else [s.name for s in SECTIONS]
+    unknown = set(wanted) - {s.name for s in SECTIONS}
+    if unknown:
+        ap.error(f"unknown section(s) {sorted(unknown)}")
+    for sec in SECTIONS:
+        if sec.name in wanted:
+            print(f"running {sec.name} ...", file=sys.stderr, flush=True)
+            write(sec.name, run_section(sec))  # after each section: a long run keeps what it finished
+    print(f"wrote {OUT}", file=sys.stderr)
+    return 0
+
+
+def write(name: str, text: str) -> None:
+    """Replace section ``name`` of docs/results.md with ``text``; every other section is kept as the
+    file has it now (so separate ``--only`` runs can update different sections)."""
     old = OUT.read_text() if OUT.exists() else ""
     parts = [
         "# Results\n\nGenerated by `make results` (benchmarks/make_results.py) on this project's 2-core CPU "
@@ -141,16 +231,13 @@ def main(argv: list[str] | None = None) -> int:
         "that produced it. Why the defaults are what they are: docs/architecture.md.\n"
     ]
     for sec in SECTIONS:
-        if sec.name in wanted:
-            print(f"running {sec.name} ...", file=sys.stderr, flush=True)
-            parts.append(run_section(sec))
-        else:
-            m = re.search(rf"<!-- section:{sec.name} -->.*?<!-- end:{sec.name} -->\n", old, re.S)
-            stub = f"<!-- section:{sec.name} -->\n## {sec.title}\n\n(not run yet)\n<!-- end:{sec.name} -->\n"
-            parts.append(m.group(0) if m else stub)
+        if sec.name == name:
+            parts.append(text)
+            continue
+        m = re.search(rf"<!-- section:{sec.name} -->.*?<!-- end:{sec.name} -->\n", old, re.S)
+        stub = f"<!-- section:{sec.name} -->\n## {sec.title}\n\n(not run yet)\n<!-- end:{sec.name} -->\n"
+        parts.append(m.group(0) if m else stub)
     OUT.write_text("\n".join(parts))
-    print(f"wrote {OUT}", file=sys.stderr)
-    return 0
 
 
 if __name__ == "__main__":

@@ -233,13 +233,13 @@ def eval_same_depth(argv: list[str]) -> int:
 
     compute, cache = pipeline._dense_depth, {}
 
-    def cached(views, pose, pts, source_size, cfg):
+    def cached(views, pose, pts, source_size, cfg, backend):
         h = hashlib.sha1()
         for a in (views.source, views.hole, pose.T, pts.xyz_source):
             h.update(np.ascontiguousarray(a).tobytes())
-        key = (h.hexdigest(), cfg.depth.backend)
+        key = (h.hexdigest(), backend)
         if key not in cache:
-            cache[key] = compute(views, pose, pts, source_size, cfg)
+            cache[key] = compute(views, pose, pts, source_size, cfg, backend)
         return cache[key]
 
     pipeline._dense_depth = cached
