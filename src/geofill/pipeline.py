@@ -245,7 +245,7 @@ def _reference_fill(target, hole, source, cfg, target_exif, source_exif, prog, r
         report.n_verified_matches = len(matches)
         notes.append(f"{len(matches)} verified of {matches.n_tentative} tentative matches")
 
-    # --- Focal length (issue 7): estimated from the matches, before the pose uses it. ---
+    # Focal length: estimated from the matches, before the pose uses it (issue 7).
     with prog.stage("focal") as notes:
         focal = estimate_focal(
             matches,
@@ -260,7 +260,6 @@ def _reference_fill(target, hole, source, cfg, target_exif, source_exif, prog, r
         report.intrinsics_target = views.K_target.resized(target.shape[1], target.shape[0]).to_json()
         report.intrinsics_source = views.K_source.resized(source.shape[1], source.shape[0]).to_json()
         notes.append(focal.summary())
-    # --- end focal ---
 
     with prog.stage("pose") as notes:
         pose = estimate_pose(matches, views.K_target, views.K_source, cfg.geometry, cfg.matching)
@@ -315,7 +314,7 @@ def _reference_fill(target, hole, source, cfg, target_exif, source_exif, prog, r
             )
         depth_s = depth.depth
 
-    # --- joint pose-depth optimisation (issue 5): refines pose.T, the depth and optionally the focal
+    # Joint pose-depth optimisation (issue 5): refines pose.T, the depth and optionally the focal.
     T, K_tw, K_sw = pose.T, views.K_target, views.K_source
     if cfg.optimize.enabled and pose.status == "ok":
         with prog.stage("optimize") as notes:
@@ -333,7 +332,6 @@ def _reference_fill(target, hole, source, cfg, target_exif, source_exif, prog, r
             if K_tw.origin == "refined":
                 report.intrinsics_target = K_tw.resized(target.shape[1], target.shape[0]).to_json()
                 report.intrinsics_source = K_sw.resized(source.shape[1], source.shape[0]).to_json()
-    # --- end of optimisation
 
     with prog.stage("render") as notes:
         H, W = target.shape[:2]
@@ -355,7 +353,7 @@ def _reference_fill(target, hole, source, cfg, target_exif, source_exif, prog, r
             f"(< {100 * cfg.render.min_hole_coverage:.0f}%): it does not see what the hole hides"
         )
 
-    # --- refinement (issue 6): residual flow alignment and colour correction of the render ---
+    # Refinement (issue 6): residual flow alignment and colour correction of the render.
     with prog.stage("refine") as notes:
         refined = refine_render(target, hole, source, rendered, cfg.refine)
         art.refined = refined
