@@ -105,6 +105,13 @@ SECTIONS = [
         [PY, "benchmarks/depth_fit_space.py"],
     ),
     Section(
+        "fitspace_default",
+        "Depth fit space, the pipeline's own intrinsics (`depth_fit_space.py --default-intrinsics`)",
+        "As above, but the intrinsics are what the pipeline finds by itself (default prior, focal estimated "
+        "from the pair, principal point at the centre): the setting a user without calibration gets.",
+        [PY, "benchmarks/depth_fit_space.py", "--default-intrinsics"],
+    ),
+    Section(
         "depth_eval",
         "Depth accuracy per backend (`benchmarks/depth_eval.py`, issue 4)",
         "The paper's supplement depth table: AbsRel, RMS-log and delta<1.25 of the source depth the pipeline "
@@ -112,6 +119,13 @@ SECTIONS = [
         "the hole; synthetic scenes (exact depth) and the real pairs with GT depth. `onnx`/`fused` need "
         "weights, which these machines cannot download: reported as unavailable.",
         [PY, "benchmarks/depth_eval.py"],
+    ),
+    Section(
+        "depth_eval_true_k",
+        "Depth accuracy per backend with the true intrinsics (`depth_eval.py --true-intrinsics`)",
+        "As above with the GT-depth pairs' calibrated K given as flags, so that the depth error is not "
+        "mixed with the focal estimate's.",
+        [PY, "benchmarks/depth_eval.py", "--synthetic", "0", "--true-intrinsics"],
     ),
     Section(
         "depth_backends",
