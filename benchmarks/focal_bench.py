@@ -2,6 +2,7 @@
 
     .venv/bin/python benchmarks/focal_bench.py [--pairs ../shared/data/pairs] [--seeds 3]
                                                [--skip-synthetic] [--skip-psnr] [--psnr-seeds 0,1,2]
+    .venv/bin/python benchmarks/focal_bench.py --curve eth3d,berlin_01_02 [--curve-scales 0.9,1,1.1]
 
 1. Real pairs with ground-truth K (meta.json K_target): true focal, the default prior, each
    method's estimate (intrinsics.estimate = none / search / bougnoux / auto) with its focal error,
@@ -17,6 +18,10 @@
    calibration flags where meta.json has it, and the fixed focal x0.98 / x1.02 (the fill's
    sensitivity to a 2 % focal change). Then, on the GT pairs, the focal error and pose errors of
    the geometry the render used (after the optimisation) for the same configurations.
+4. ``--curve`` (only this): hole PSNR of the fixed focal swept over a grid of scales of the default,
+   per mask seed, on the named pairs, with the estimated focal (and the true one where known) on the
+   same scale: how smooth the fill's PSNR is in the focal, i.e. what a per-pair PSNR difference
+   between two focal lengths can tell.
 
 Timings are wall-clock on this machine. Figures, not a test.
 """
@@ -53,8 +58,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--skip-synthetic", action="store_true")
     ap.add_argument("--skip-psnr", action="store_true", help="skip the hole-PSNR comparison (slow)")
     ap.add_argument("--psnr-seeds", default="0", help="comma-separated mask seeds of the PSNR comparison")
+    ap.add_argument("--curve", help="comma-separated pair-id substrings: run only the fixed-focal PSNR curve")
+    ap.add_argument("--curve-scales", default="0.85,0.9,0.95,1,1.05,1.1,1.2,1.35,1.5,1.65")
     args = ap.parse_args(argv)
     pairs = load_pairs([args.pairs])
+    if args.curve:
+        chosen = [p for p in pairs if any(k in p.id for k in args.curve.split(","))]
+        if not chosen:
+            ap.error(f"no pair id contains any of {args.curve!r}")
+        seeds = [int(x) for x in args.psnr_seeds.split(",")]
+        psnr_curve(chosen, [float(x) for x in args.curve_scales.split(",")], seeds)
+        return 0
     real_pairs(pairs)
     if not args.skip_synthetic:
         synthetic(args.seeds)
@@ -290,6 +304,51 @@ def hole_psnr(pairs, seeds: list[int]) -> None:
         print(
             f"{n:<8s} ({len(r)} GT-pose pairs) median |focal err| {np.median(f):.1f}%, "
             f"R {np.median(r):.2f} deg, t {np.median(t):.2f} deg; mean R {np.mean(r):.2f}, t {np.mean(t):.2f}"
+        )
+
+
+def _fill_psnr(pair, hole, cfg) -> tuple[float, object]:
+    res = fill(
+        pair.target, hole, pair.source, cfg, target_exif=pair.exif.target, source_exif=pair.exif.source
+    )
+    return psnr(res.image, pair.target, hole), res
+
+
+def _default_scale(K: Intrinsics) -> float:
+    return K.fx / default_focal_px(K.width, K.height)
+
+
+def psnr_curve(pairs, scales: list[float], seeds: list[int]) -> None:
+    print(
+        f"== Hole PSNR (dB) of the fixed focal = scale x default, mask seeds {','.join(map(str, seeds))}; "
+        "'estim.' rows: the default pipeline (focal estimated), at the scale it chose"
+    )
+    for pair in pairs:
+        f0 = default_focal_px(*pair.target.shape[1::-1])
+        truth = ""
+        if pair.meta.get("K_target") is not None:
+            truth = f", true focal x{pair.meta['K_target'][0][0] / f0:.3f}"
+        print(f"-- {pair.id} (default focal {f0:.0f} px{truth})")
+        print(f"{'scale':>8s}" + "".join(f" {'seed ' + str(s):>8s}" for s in seeds) + f" {'mean':>7s}")
+        holes = [pair_mask(pair, seed) for seed in seeds]
+        means = []
+        for k in scales:
+            cfg = CFG.updated(
+                {"intrinsics.estimate": "none", "intrinsics.use_exif": False, "intrinsics.focal_px": f0 * k}
+            )
+            v = [_fill_psnr(pair, hole, cfg)[0] for hole in holes]
+            means.append(float(np.mean(v)))
+            print(f"x{k:<7.3f}" + "".join(f" {x:8.2f}" for x in v) + f" {means[-1]:7.2f}", flush=True)
+        est = [_fill_psnr(pair, hole, CFG) for hole in holes]
+        chosen = " ".join(f"x{_default_scale(r.artifacts.focal.K_target):.3f}" for _, r in est)
+        v = [x for x, _ in est]
+        print(f"{'estim.':<8s}" + "".join(f" {x:8.2f}" for x in v) + f" {np.mean(v):7.2f}  (scales {chosen})")
+        steps = np.abs(np.diff(means))
+        best = scales[int(np.argmax(means))]
+        print(
+            f"mean over seeds: range {min(means):.2f}..{max(means):.2f} dB, best at x{best:.3f}; "
+            f"|change| between neighbouring scales median {np.median(steps):.2f}, max {steps.max():.2f} dB",
+            flush=True,
         )
 
 

@@ -188,6 +188,22 @@ SECTIONS = [
         [PY, "benchmarks/focal_bench.py", "--psnr-seeds", "0,1,2"],
     ),
     Section(
+        "focal_curve",
+        "Fill PSNR against the focal length (`benchmarks/focal_bench.py --curve`, issue 7)",
+        "Hole PSNR per mask seed with the focal fixed at a grid of scales of the default, on the pair where "
+        "the estimate lost most against the default (ETH3D terrace, no ground truth) and on two GT pairs; "
+        "'estim.' is the default pipeline at the scale it chose. How far apart neighbouring focal lengths "
+        "land is the noise floor of any per-pair comparison of two focal lengths.",
+        [
+            PY,
+            "benchmarks/focal_bench.py",
+            "--curve",
+            "eth3d,berlin_01_02,livingroom_f2",
+            "--psnr-seeds",
+            "0,1,2",
+        ],
+    ),
+    Section(
         "focal_refine",
         "Focal refinement in the optimisation, synthetic (`benchmarks/optimize_bench.py focal`, issue 7)",
         "Rendered scenes whose true focal is 0.8x / 1.25x the assumed default, filled with and without "
