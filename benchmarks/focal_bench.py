@@ -204,6 +204,21 @@ def _final_geometry(res):
     return art.focal.K_target, art.pose.T
 
 
+def _fill_psnr(pair, hole, cfg) -> tuple[float, object]:
+    res = fill(
+        pair.target, hole, pair.source, cfg, target_exif=pair.exif.target, source_exif=pair.exif.source
+    )
+    return psnr(res.image, pair.target, hole), res
+
+
+def _fixed_focal(focal_px: float | None = None) -> FillConfig:
+    """The paper's setting: one focal for both images (default: 750 px at a 1280-px long side),
+    EXIF ignored, nothing estimated."""
+    return CFG.updated(
+        {"intrinsics.estimate": "none", "intrinsics.use_exif": False, "intrinsics.focal_px": focal_px}
+    )
+
+
 def hole_psnr(pairs, seeds: list[int]) -> None:
     """Whole fills with the evaluation's masks: the fixed default focal, the estimate (default),
     the estimate refined by the optimisation, the true K where meta.json has it, and the fixed focal
@@ -214,7 +229,7 @@ def hole_psnr(pairs, seeds: list[int]) -> None:
         "focal, estimated (default), refined (optimize.refine_focal), true K; fixed focal x0.98 / x1.02"
     )
     configs = {
-        "fixed": CFG.updated({"intrinsics.estimate": "none", "intrinsics.use_exif": False}),
+        "fixed": _fixed_focal(),
         "estim.": CFG,
         "refined": CFG.updated({"optimize.refine_focal": True}),
     }
@@ -236,25 +251,13 @@ def hole_psnr(pairs, seeds: list[int]) -> None:
             )
         if default_focal_px(*pair.source.shape[1::-1]) == f0:  # one focal_px fits both images
             for k in (0.98, 1.02):
-                fixed_k = {
-                    "intrinsics.estimate": "none",
-                    "intrinsics.use_exif": False,
-                    "intrinsics.focal_px": f0 * k,
-                }
-                cfgs[f"x{k:.2f}"] = CFG.updated(fixed_k)
+                cfgs[f"x{k:.2f}"] = _fixed_focal(f0 * k)
         row: dict[str, list[float]] = {}
         for seed in seeds:
             hole = pair_mask(pair, seed)
             for name, cfg in cfgs.items():
-                res = fill(
-                    pair.target,
-                    hole,
-                    pair.source,
-                    cfg,
-                    target_exif=pair.exif.target,
-                    source_exif=pair.exif.source,
-                )
-                row.setdefault(name, []).append(psnr(res.image, pair.target, hole))
+                value, res = _fill_psnr(pair, hole, cfg)
+                row.setdefault(name, []).append(value)
                 if seed == seeds[0] and pair.meta.get("K_target") is not None:
                     geometry.setdefault(pair.id, {})[name] = _final_geometry(res)
         v = table[pair.id] = {k: float(np.mean(x)) for k, x in row.items()}
@@ -307,13 +310,6 @@ def hole_psnr(pairs, seeds: list[int]) -> None:
         )
 
 
-def _fill_psnr(pair, hole, cfg) -> tuple[float, object]:
-    res = fill(
-        pair.target, hole, pair.source, cfg, target_exif=pair.exif.target, source_exif=pair.exif.source
-    )
-    return psnr(res.image, pair.target, hole), res
-
-
 def _default_scale(K: Intrinsics) -> float:
     return K.fx / default_focal_px(K.width, K.height)
 
@@ -333,10 +329,7 @@ def psnr_curve(pairs, scales: list[float], seeds: list[int]) -> None:
         holes = [pair_mask(pair, seed) for seed in seeds]
         means = []
         for k in scales:
-            cfg = CFG.updated(
-                {"intrinsics.estimate": "none", "intrinsics.use_exif": False, "intrinsics.focal_px": f0 * k}
-            )
-            v = [_fill_psnr(pair, hole, cfg)[0] for hole in holes]
+            v = [_fill_psnr(pair, hole, _fixed_focal(f0 * k))[0] for hole in holes]
             means.append(float(np.mean(v)))
             print(f"x{k:<7.3f}" + "".join(f" {x:8.2f}" for x in v) + f" {means[-1]:7.2f}", flush=True)
         est = [_fill_psnr(pair, hole, CFG) for hole in holes]
