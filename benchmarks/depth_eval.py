@@ -50,7 +50,7 @@ def synthetic_cases(n: int) -> list[Case]:
     cases = []
     for i in range(n):
         sp = make_pair(seed=i)
-        pair = Pair(f"synthetic_{i:03d}", sp.target, sp.source, {"kind": "synthetic"}, None)
+        pair = Pair(f"synthetic_{i:03d}", sp.target, [sp.source], {"kind": "synthetic"}, None)
         cases.append(Case(pair, sp.depth_source, sp.K_source, sp.K_target, sp.T_source_to_target))
     return cases
 

@@ -25,6 +25,7 @@ from geofill.config import FillConfig, parse_overrides
 from geofill.evaluation.baselines import BaselineError, homography_fill
 from geofill.evaluation.metrics import psnr
 from geofill.evaluation.runner import load_pairs, pair_mask
+from geofill.inpaint import get_inpainter
 from geofill.merge import merge_fill
 from geofill.pipeline import fill
 from geofill.refine import refine_render
@@ -103,11 +104,11 @@ def main(argv: list[str] | None = None) -> int:
             cfg = base.updated({f"refine.{k}": v for k, v in overrides.items()})
             t0 = time.perf_counter()
             if rendered is None:
-                image = merge_fill(masked, hole, None, None, cfg.inpaint)
+                image = merge_fill(masked, hole, None, None, get_inpainter(cfg.inpaint))
             else:
                 ref = refine_render(masked, hole, pair.source, rendered, cfg.refine)
                 feather = cfg.refine.feather_px * max(hole.shape) / 1280.0
-                image = merge_fill(masked, hole, ref.image, ref.alpha, cfg.inpaint, feather)
+                image = merge_fill(masked, hole, ref.image, ref.alpha, get_inpainter(cfg.inpaint), feather)
             seconds[name].append(time.perf_counter() - t0)
             assert np.array_equal(image[~hole], pair.target[~hole])
             table[name].append(psnr(image, pair.target, hole))

@@ -49,15 +49,17 @@ def test_fill_writes_output_and_debug(files, tmp_path, capsys):
     assert np.array_equal(result[~p.hole], p.target[~p.hole])
     assert not np.array_equal(result[p.hole], np.zeros_like(result[p.hole]))
     names = {f.name for f in dbg.iterdir()}
-    assert {"matches.jpg", "depth.png", "depth.npy", "warped.png", "coverage.png", "report.json"} <= names
+    expected = {"matches_1.jpg", "depth_1.png", "depth_1.npy", "warped_1.png", "refined_1.png"}
+    assert expected | {"coverage.png", "overview.jpg", "report.json"} <= names
     report = json.loads((dbg / "report.json").read_text())
     assert report["status"] == "reference"
-    assert report["n_pose_inliers"] > 50 and len(report["pose_source_to_target"]) == 4
+    ref = report["references"][0]
+    assert ref["pose"]["n_inliers"] > 50 and len(ref["pose"]["source_to_target"]) == 4
     # The focal used is the default prior (750 px at a 1280-px long side) times the focal stage's scale.
-    focal = report["focal"]
+    focal = ref["focal"]
     assert focal["prior_origin_target"] == "default" and focal["status"] in ("estimated", "prior")
-    assert report["intrinsics_target"]["fx_px"] == pytest.approx(750 * 320 / 1280 * focal["scale_target"])
-    assert set(report["timings_s"]) >= {"match", "pose", "depth", "render"}
+    assert ref["intrinsics_target"]["fx_px"] == pytest.approx(750 * 320 / 1280 * focal["scale_target"])
+    assert set(report["timings_s"]) >= {"match", "pose", "depth", "render", "fuse"}
     assert report["config"]["render"]["edge_threshold"] == 0.04
 
 

@@ -16,7 +16,7 @@ from geofill.depth import choose_backend
 from geofill.depth.fused import fit_to_stereo
 from geofill.depth.onnx import MODELS, input_size, predict_learned, preprocess
 from geofill.depth.stereo import Hypotheses, SweepResult
-from geofill.errors import DepthModelError
+from geofill.errors import DepthModelError, ReferenceUnusable
 from geofill.pipeline import fill
 from geofill.synthetic import make_pair
 from geofill.triangulation import TriangulatedPoints
@@ -150,7 +150,7 @@ def test_fused_fit_recovers_affine_map_with_confidence_weights():
 def test_fused_fit_needs_samples():
     learned = np.ones((20, 20), np.float32)
     pts = TriangulatedPoints(np.zeros((0, 3)), np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0), np.zeros(0))
-    with pytest.raises(ValueError, match="samples"):
+    with pytest.raises(ReferenceUnusable, match="samples"):
         fit_to_stereo(learned, _sweep(learned, np.zeros_like(learned)), pts, 0.5, (20, 20))
 
 
@@ -170,7 +170,7 @@ def oracle_model(scene, tmp_path_factory):
 
 
 def _abs_rel(res, scene) -> float:
-    z = res.artifacts.depth.depth * np.linalg.norm(scene.T_source_to_target[:3, 3])
+    z = res.references[0].depth.depth * np.linalg.norm(scene.T_source_to_target[:3, 3])
     gt = cv2.resize(scene.depth_source, z.shape[::-1], interpolation=cv2.INTER_NEAREST)
     return float(np.nanmedian(np.abs(z - gt) / gt))
 
@@ -183,9 +183,10 @@ def test_learned_backends_in_the_pipeline(scene, oracle_model, backend):
     res = fill(scene.target, scene.hole, scene.source, cfg)
     r = res.report
     assert r.status == "reference"
-    assert r.depth_backend == ("fused" if backend == "auto" else backend)
+    depth = r.references[0]["depth"]
+    assert depth["backend"] == ("fused" if backend == "auto" else backend)
     # onnx: fitted to the triangulated points; fused: fitted to stereo inside the backend.
-    assert r.depth_fit["method"] == ("robust" if backend == "onnx" else "identity")
+    assert depth["method"] == ("robust" if backend == "onnx" else "identity")
     assert _abs_rel(res, scene) < 0.03
     if backend == "auto":
         assert "fused (auto: learned depth" in r.depth_choice and "oracle.onnx" in r.depth_choice
@@ -198,7 +199,7 @@ def test_auto_without_weights_runs_stereo_and_says_why(scene, monkeypatch, tmp_p
     assert choice.name == "stereo"
     assert "Depth Anything V2 Small" in choice.reason and "HF_HUB_OFFLINE" in choice.reason
     res = fill(scene.target, scene.hole, scene.source, FillConfig())
-    assert res.report.depth_backend == "stereo" and res.report.depth_choice == choice.reason
+    assert res.references[0].depth.backend == "stereo" and res.report.depth_choice == choice.reason
 
 
 def test_auto_with_broken_explicit_path_is_an_error(tmp_path):
@@ -226,7 +227,8 @@ def test_cli_prints_the_depth_choice_and_reports_it(scene, tmp_path, capsys):
     import json
 
     report = json.loads((tmp_path / "dbg" / "report.json").read_text())
-    assert report["depth_backend"] == "stereo" and "HF_HUB_OFFLINE" in report["depth_choice"]
+    assert report["references"][0]["depth"]["backend"] == "stereo"
+    assert "HF_HUB_OFFLINE" in report["depth_choice"]
 
 
 def test_cli_depth_model_flag(scene, oracle_model, tmp_path, capsys):

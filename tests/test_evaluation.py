@@ -76,7 +76,7 @@ def planar_pairs(n: int) -> list[Pair]:
     pairs = []
     for i in range(n):
         target, source, _ = planar_pair(angle_deg=4.0 + 3.0 * i)
-        pairs.append(Pair(f"planar_{i}", target, source, {"kind": f"synthetic{i % 2} (planar)"}, None))
+        pairs.append(Pair(f"planar_{i}", target, [source], {"kind": f"synthetic{i % 2} (planar)"}, None))
     return pairs
 
 

@@ -211,15 +211,17 @@ def test_bougnoux_refuses_parallel_optical_axes():
 def test_fill_reports_focal_origin_uncertainty_and_candidates():
     pair = make_pair(seed=0, width=480, height=360, focal_px=1.6 * default_focal_px(480, 360), baseline=1.0)
     report = fill(pair.target, pair.hole, pair.source).report
-    assert report.intrinsics_target["origin"] == "estimated"
-    assert report.intrinsics_target["fx_px"] == pytest.approx(pair.K_target[0, 0], rel=0.05)
-    assert 0.0 < report.intrinsics_target["rel_uncertainty"] < 0.3
-    focal = report.focal
+    assert report.references[0]["intrinsics_target"]["origin"] == "estimated"
+    assert report.references[0]["intrinsics_target"]["fx_px"] == pytest.approx(pair.K_target[0, 0], rel=0.05)
+    assert 0.0 < report.references[0]["intrinsics_target"]["rel_uncertainty"] < 0.3
+    focal = report.references[0]["focal"]
     assert focal["status"] == "estimated" and focal["method"] == "search"
     assert focal["prior_origin_target"] == "default"
     assert focal["scale_target"] == pytest.approx(1.6, rel=0.05)
     assert len(focal["profile"]) == CFG.intrinsics.search_steps
     assert {"scale", "cost", "inliers", "median_px"} <= set(focal["profile"][0])
     assert focal["candidates"][0]["ok"] and "focal" in report.timings_s
-    r_err, t_err = pose_errors_deg(np.array(report.pose_source_to_target), pair.T_source_to_target)
+    r_err, t_err = pose_errors_deg(
+        np.array(report.references[0]["pose"]["source_to_target"]), pair.T_source_to_target
+    )
     assert r_err < 0.5 and t_err < 2.0

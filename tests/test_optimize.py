@@ -18,8 +18,8 @@ from geofill.config import FillConfig, OptimizeConfig
 from geofill.depth.align import AlignedDepth
 from geofill.importance import edge_maps, edge_weight, hole_weight, importance_map
 from geofill.matching import match_pair
-from geofill.pipeline import RENDER_MARGIN_PX, fill, render_roi
-from geofill.render import project_source_grid, render_mesh
+from geofill.pipeline import fill, render_margin_px
+from geofill.render import project_source_grid, render_mesh, render_roi
 from geofill.synthetic import make_pair
 
 # ---------------------------------------------------------------------------------------------
@@ -345,15 +345,18 @@ def test_rotation_only_pose_is_skipped(scene):
 def test_pipeline_renders_with_the_optimised_geometry():
     sp = make_pair(seed=2, width=320, height=240)
     res = fill(sp.target, sp.hole, sp.source)
-    o, art = res.report.optimization, res.artifacts
+    o, art = res.report.references[0]["optimize"], res.references[0]
     assert o["status"] == "accepted" and o["final_objective"] <= o["initial_objective"]
     assert o["rotation_change_deg"] > 0 and "optimize" in res.report.timings_s
-    v = art.views  # working resolution == input resolution here
-    roi = render_roi(sp.hole, int(RENDER_MARGIN_PX * 320 / 1280))
-    again = render_mesh(art.optimization.depth.depth, v.K_source, v.K_target, art.optimization.T, 0.04, roi)
-    assert np.array_equal(again.map_x, art.render.map_x)
+    g = art.geometry  # working resolution == input resolution here
+    roi = render_roi(sp.hole, int(render_margin_px(FillConfig()) * 320 / 1280))
+    again = render_mesh(g.depth, g.K_source, g.K_target, g.T, 0.04, roi)
+    assert np.array_equal(again.map_x, art.render.render.map_x)
     off = fill(sp.target, sp.hole, sp.source, FillConfig().updated({"optimize.enabled": False}))
-    assert off.report.optimization == {} and "optimize" not in off.report.timings_s
+    assert off.report.references[0]["optimize"] == {
+        "status": "skipped",
+        "reason": "optimize.enabled is false",
+    }
 
 
 def test_focal_refinement_moves_towards_the_true_focal():
@@ -362,10 +365,10 @@ def test_focal_refinement_moves_towards_the_true_focal():
     f_true = 1.25 * f_assumed
     sp = make_pair(seed=1, width=w, height=h, focal_px=f_true)
     res = fill(sp.target, sp.hole, sp.source, FillConfig().updated({"optimize.refine_focal": True}))
-    o = res.report.optimization
+    o = res.report.references[0]["optimize"]
     assert o["status"] == "accepted"
     f_refined = o["focal_target_px"]
     assert abs(math.log(f_refined / f_true)) < 0.5 * abs(math.log(f_assumed / f_true))
-    assert res.artifacts.optimization.K_source.origin == "refined"
-    assert res.report.intrinsics_target["origin"] == "refined"
-    assert res.report.intrinsics_target["fx_px"] == pytest.approx(f_refined)
+    assert res.references[0].geometry.K_source.origin == "refined"
+    assert res.report.references[0]["intrinsics_target"]["origin"] == "refined"
+    assert res.report.references[0]["intrinsics_target"]["fx_px"] == pytest.approx(f_refined)

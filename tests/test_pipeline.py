@@ -26,10 +26,11 @@ def result(pair):
 def test_fill_recovers_pose_and_beats_single_image(pair, result):
     r = result.report
     assert r.status == "reference" and not r.fallbacks
-    rot, tdir = pose_errors_deg(np.array(r.pose_source_to_target), pair.T_source_to_target)
+    T = np.array(r.references[0]["pose"]["source_to_target"])
+    rot, tdir = pose_errors_deg(T, pair.T_source_to_target)
     assert rot < 0.5 and tdir < 2.0
     # default depth is stereo here (no weights): 0.865 on this scene (sparse 0.92, exact depth 0.99)
-    assert r.hole_coverage > 0.83
+    assert r.supplied_fraction[0] > 0.83
     single = inpaint_single(pair.target, pair.hole, FillConfig().inpaint)
     p_geo, p_single = psnr(result.image, pair.target, pair.hole), psnr(single, pair.target, pair.hole)
     assert p_geo > 18.0
@@ -52,13 +53,29 @@ def test_hole_content_does_not_steer_the_fill(pair, result):
 
 def test_report_has_stage_timings_and_geometry(pair, result):
     r = result.report
-    for stage in ("check inputs", "match", "focal", "pose", "triangulate", "depth", "render", "composite"):
+    for stage in (
+        "check inputs",
+        "match",
+        "focal",
+        "pose",
+        "triangulate",
+        "depth",
+        "render",
+        "fuse",
+        "composite",
+    ):
         assert r.timings_s[stage] >= 0.0
-    assert r.n_verified_matches >= r.n_pose_inliers >= r.n_triangulated > 50
-    assert r.intrinsics_target["origin"] == "estimated"  # from the default prior, by the focal stage
-    assert r.intrinsics_target["fx_px"] == pytest.approx(pair.K_target[0, 0], rel=0.05)
-    assert r.depth_fit["method"] == "identity"  # sparse depth is built in pose units
-    assert '"hole_coverage"' in r.to_json()
+    ref = r.references[0]
+    assert ref["status"] == "used" and set(ref["timings_s"]) >= {"match", "render", "refine"}
+    assert ref["match"]["n_verified"] >= ref["pose"]["n_inliers"] >= ref["triangulate"]["n_points"] > 50
+    assert ref["intrinsics_target"]["origin"] == "estimated"  # from the default prior, by the focal stage
+    assert ref["intrinsics_target"]["fx_px"] == pytest.approx(pair.K_target[0, 0], rel=0.05)
+    assert ref["depth"]["method"] == "identity"  # sparse depth is built in pose units
+    # What the reference supplies is its render's coverage after the flow moved it.
+    assert r.supplied_fraction[0] == pytest.approx(result.references[0].refined.alpha[pair.hole].mean())
+    assert ref["render"]["hole_coverage"] >= r.supplied_fraction[0]
+    assert r.painted_fraction == pytest.approx(1.0 - r.supplied_fraction[0])
+    assert '"supplied_fraction"' in r.to_json()
 
 
 def test_exact_depth_from_file_renders_hole_accurately(pair, tmp_path):
@@ -69,9 +86,10 @@ def test_exact_depth_from_file_renders_hole_accurately(pair, tmp_path):
     overrides["intrinsics.estimate"] = "none"  # the default focal is the true one: isolate depth + render
     cfg = FillConfig().updated(overrides)
     res = fill(pair.target, pair.hole, pair.source, cfg)
-    assert res.report.depth_fit["method"] == "scale-only"
-    assert res.report.depth_fit["median_rel_error"] < 0.01
-    covered = pair.hole & res.artifacts.render.alpha
+    depth = res.report.references[0]["depth"]
+    assert depth["method"] == "scale-only"
+    assert depth["median_rel_error"] < 0.01
+    covered = pair.hole & res.references[0].render.render.alpha
     assert covered.sum() > 0.95 * pair.hole.sum()
     assert psnr(res.image, pair.target, covered) > 30.0
 
@@ -79,10 +97,11 @@ def test_exact_depth_from_file_renders_hole_accurately(pair, tmp_path):
 def test_pure_rotation_is_filled_with_the_rotation_homography():
     p = make_pair(seed=1, width=400, height=300, motion="rotate")
     res = fill(p.target, p.hole, p.source)
-    assert res.report.pose_status == "rotation_only"
+    pose = res.report.references[0]["pose"]
+    assert pose["status"] == "rotation_only"
     assert any("rotation" in f for f in res.report.fallbacks)
-    assert pose_errors_deg(np.array(res.report.pose_source_to_target), p.T_source_to_target)[0] < 0.2
-    assert psnr(res.image, p.target, p.hole & res.artifacts.render.alpha) > 28.0
+    assert pose_errors_deg(np.array(pose["source_to_target"]), p.T_source_to_target)[0] < 0.2
+    assert psnr(res.image, p.target, p.hole & res.references[0].render.render.alpha) > 28.0
 
 
 def test_unrelated_source_falls_back_to_single_image_with_reason(pair):
@@ -100,7 +119,7 @@ def test_source_that_does_not_see_the_hole_falls_back():
     hole = np.zeros_like(p.hole)
     hole[100:260, :50] = True  # the source moved 1.5 units right and never saw this strip
     res = fill(p.target, hole, p.source)
-    assert res.report.pose_status == "ok"
+    assert res.report.references[0]["pose"]["status"] == "ok"
     assert res.report.status == "single_image"
     assert "covers only 0.0%" in res.report.fallbacks[-1]
 
@@ -109,6 +128,7 @@ def test_different_source_size_and_portrait():
     p = make_pair(seed=2, width=300, height=400, source_size=(480, 360))
     res = fill(p.target, p.hole, p.source)
     assert res.report.status == "reference"
-    rot, tdir = pose_errors_deg(np.array(res.report.pose_source_to_target), p.T_source_to_target)
+    ref = res.report.references[0]
+    rot, tdir = pose_errors_deg(np.array(ref["pose"]["source_to_target"]), p.T_source_to_target)
     assert rot < 0.5 and tdir < 2.0
-    assert res.report.intrinsics_source["width"] == 480
+    assert ref["intrinsics_source"]["width"] == 480

@@ -13,7 +13,7 @@ from geofill.camera import Intrinsics
 from geofill.config import FillConfig, InpaintConfig, RefineConfig
 from geofill.errors import InpaintModelError
 from geofill.evaluation.metrics import psnr
-from geofill.inpaint import LAMA_WEIGHTS, get_inpainter, inpaint_single
+from geofill.inpaint import LAMA_WEIGHTS, Inpainter, get_inpainter, inpaint_single
 from geofill.lama import crop_window
 from geofill.membrane import membrane_fill
 from geofill.merge import blend_map, merge_fill
@@ -152,7 +152,7 @@ def test_colour_correction_in_the_pipeline_fixes_an_exposure_change():
     base = FillConfig().updated({"refine.flow": False})
     plain = fill(p.target, p.hole, p.source, base.updated({"refine.colour": "none"}))
     gained = fill(p.target, p.hole, p.source, base)
-    assert gained.report.refine["colour"] == "gain"
+    assert gained.report.references[0]["refine"]["colour"] == "gain"
     assert psnr(gained.image, p.target, p.hole) > psnr(plain.image, p.target, p.hole) + 3.0
 
 
@@ -171,16 +171,16 @@ def test_blend_map_ramps_from_uncovered_regions_and_ignores_cracks():
     assert not m[~hole].any() and not m[hole & ~alpha].any()
 
 
-def test_feathered_merge_leaves_no_seam(monkeypatch):
+def test_feathered_merge_leaves_no_seam():
     """The single-image fill disagrees with the render (100 vs 200 grey levels): pasted with hard
     edges the step is 100 levels; with a feathered M_single it is spread over the ramp."""
 
-    def flat(image, region, cfg):
+    def flat(image, region):
         out = image.copy()
         out[region] = 100
         return out
 
-    monkeypatch.setattr("geofill.merge.inpaint_single", flat)
+    flat_inpainter = Inpainter("flat", "flat", flat)
     target = np.full((60, 80, 3), 150, np.uint8)
     hole = np.zeros((60, 80), bool)
     hole[10:50, 10:70] = True
@@ -189,7 +189,7 @@ def test_feathered_merge_leaves_no_seam(monkeypatch):
     alpha[:, 45:] = False
     steps = {}
     for feather in (0.0, 10.0):
-        out = merge_fill(target, hole, render, alpha, InpaintConfig(method="telea"), feather).astype(int)
+        out = merge_fill(target, hole, render, alpha, flat_inpainter, feather).astype(int)
         steps[feather] = np.abs(np.diff(out[15:45, 10:70, 0], axis=1)).max()
         assert np.array_equal(out[~hole], target[~hole])
     assert steps[0.0] == 100
@@ -308,6 +308,7 @@ def test_pipeline_reports_refinement_and_the_inpainter(pair, monkeypatch, tmp_pa
     res = fill(pair.target, pair.hole, pair.source)
     r = res.report
     assert r.inpaint_method.startswith("telea (auto:")
-    assert r.refine["flow_applied"] and r.refine["colour"] == "gain"
-    assert r.refine["band_error_after"] < r.refine["band_error_before"]
+    refine = r.references[0]["refine"]
+    assert refine["flow_applied"] and refine["colour"] == "gain"
+    assert refine["band_error_after"] < refine["band_error_before"]
     assert "refine" in r.timings_s

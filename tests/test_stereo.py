@@ -49,9 +49,10 @@ def hole_projecting(sp) -> np.ndarray:
 def case(request):
     sp = make_pair(**request.param)
     res = fill(sp.target, sp.hole, sp.source, FillConfig().updated({"depth.backend": "stereo"}))
-    a, v = res.artifacts, res.artifacts.views
+    a = res.references[0]
+    v, K = a.views, a.focal
     ctx = DepthContext(
-        v.source, v.target, v.hole, v.K_source, v.K_target, a.pose, a.points, (0, 0), FillConfig().depth
+        v.source, v.target, v.hole, K.K_source, K.K_target, a.pose, a.points, (0, 0), FillConfig().depth
     )
     sweep = plane_sweep(ctx)
     return sp, res, ctx, sweep
@@ -88,9 +89,9 @@ def test_hole_projecting_pixels_are_never_confident_but_completed(case):
 def test_pipeline_uses_stereo_depth_in_pose_units(case):
     sp, res, _, _ = case
     r = res.report
-    assert r.status == "reference" and r.depth_backend == "stereo"
-    assert r.depth_fit["method"] == "identity"  # no refit: the sweep used the pose itself
-    assert np.nanmedian(rel_error(1.0 / res.artifacts.depth.depth, sp)) < 0.02
+    assert r.status == "reference" and r.references[0]["depth"]["backend"] == "stereo"
+    assert r.references[0]["depth"]["method"] == "identity"  # no refit: the sweep used the pose itself
+    assert np.nanmedian(rel_error(1.0 / res.references[0].depth.depth, sp)) < 0.02
 
 
 def test_depth_bounds_cover_and_widen_the_points():

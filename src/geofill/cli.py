@@ -8,13 +8,15 @@ import argparse
 import sys
 from pathlib import Path
 
-from .config import FillConfig, parse_overrides
+from .config import PRESETS, FillConfig, parse_overrides
 from .errors import GeoFillError
 from .progress import Progress
 
 
 def _config_from_args(args: argparse.Namespace) -> FillConfig:
     cfg = FillConfig.from_json(args.config) if args.config else FillConfig()
+    if getattr(args, "preset", None):
+        cfg = cfg.preset(args.preset)
     overrides = parse_overrides(args.set)
     flag_map = {
         "depth": "depth.backend",
@@ -53,6 +55,11 @@ def _floats4(text: str) -> list[float]:
 
 def _add_config_flags(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", help="JSON config file (see `geofill config`)")
+    p.add_argument(
+        "--preset",
+        choices=sorted(PRESETS),
+        help="named configuration applied on top of --config: the paper's settings and ablations",
+    )
     p.add_argument(
         "--set", action="append", metavar="KEY=VALUE", help="override a config key, e.g. depth.backend=file"
     )
@@ -93,38 +100,63 @@ def cmd_fill(args: argparse.Namespace) -> int:
 
     cfg = _config_from_args(args)
     check_output_path(args.output)
+    source_paths = reference_paths(args.source or [], args.sources)
     target = read_image(args.target, max_pixels=cfg.max_pixels, min_side=cfg.min_side_px)
-    source = read_image(args.source, max_pixels=cfg.max_pixels, min_side=cfg.min_side_px)
+    sources = [read_image(p, max_pixels=cfg.max_pixels, min_side=cfg.min_side_px) for p in source_paths]
     mask = read_mask(args.mask, max_pixels=cfg.max_pixels)
     # Validated here too so that errors name the files rather than "target"/"mask".
-    validate_pair(
-        target.pixels,
-        mask,
-        source.pixels,
-        min_side=cfg.min_side_px,
-        max_pixels=cfg.max_pixels,
-        max_mask_fraction=cfg.max_mask_fraction,
-        names=(args.target, args.mask, args.source),
-    )
+    for path, source in zip(source_paths, sources, strict=True):
+        validate_pair(
+            target.pixels,
+            mask,
+            source.pixels,
+            min_side=cfg.min_side_px,
+            max_pixels=cfg.max_pixels,
+            max_mask_fraction=cfg.max_mask_fraction,
+            names=(args.target, args.mask, str(path)),
+        )
     prog = Progress(quiet=args.quiet)
     result = fill(
         target.pixels,
         mask,
-        source.pixels,
+        [s.pixels for s in sources],
         cfg,
         target_exif=target.exif,
-        source_exif=source.exif,
+        source_exifs=[s.exif for s in sources],
         progress=prog,
     )
     if args.debug_dir:
         write_debug(args.debug_dir, result, mask, cfg)
     write_image_atomic(args.output, result.image)
     r = result.report
-    how = "from the source" if r.status == "reference" else "by single-image inpainting"
+    shares = ", ".join(
+        f"{100 * f:.0f}% from reference {i}" for i, f in enumerate(r.supplied_fraction, 1) if f > 0
+    )
+    how = f"{shares}, {100 * r.painted_fraction:.0f}% painted" if shares else "by single-image inpainting"
     prog.say(
         f"wrote {args.output}: hole of {r.hole_pixels} px filled {how} in {sum(r.timings_s.values()):.2f} s"
     )
     return 0
+
+
+def reference_paths(files: list[str], folder: str | None) -> list[Path]:
+    """The reference photos: each ``--source`` file, then every image in ``--sources DIR`` (sorted
+    by name). None at all is an input error."""
+    from .errors import InputError
+    from .io import IMAGE_SUFFIXES
+
+    paths = [Path(f) for f in files]
+    if folder is not None:
+        d = Path(folder)
+        if not d.is_dir():
+            raise InputError(f"--sources {folder}: not a folder")
+        found = sorted(p for p in d.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
+        if not found:
+            raise InputError(f"--sources {folder}: no image files ({', '.join(sorted(IMAGE_SUFFIXES))})")
+        paths += found
+    if not paths:
+        raise InputError("no reference photo: give --source FILE (repeatable) or --sources DIR")
+    return paths
 
 
 def cmd_config(args: argparse.Namespace) -> int:
@@ -143,12 +175,15 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="geofill", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
 
-    p = sub.add_parser("fill", help="fill the hole of TARGET with content from SOURCE")
+    p = sub.add_parser("fill", help="fill the hole of TARGET with content from one or more SOURCE photos")
     p.add_argument("--target", required=True, help="image with the hole (PNG/JPEG/WebP/TIFF)")
     p.add_argument(
         "--mask", required=True, help="hole mask, same size as target: pixel >= 127 (or alpha) = hole"
     )
-    p.add_argument("--source", required=True, help="another photo of the same scene")
+    p.add_argument(
+        "--source", action="append", metavar="FILE", help="another photo of the same scene (repeatable)"
+    )
+    p.add_argument("--sources", metavar="DIR", help="every image in DIR is a reference photo")
     p.add_argument("-o", "--output", required=True, help="output image (written atomically)")
     p.add_argument("--debug-dir", help="write matches, depth, warped source, coverage and report.json here")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress messages")

@@ -87,10 +87,16 @@ class MatchingConfig:
     hole_margin_px: float = 8.0
     #: Robust estimator for the epipolar geometry.
     robust_method: Literal["magsac", "ransac", "lmeds"] = "magsac"
-    #: Inlier threshold (px at the working resolution).
+    #: Inlier threshold of every robust fit on the matches (F, E, the rotation-only homography at
+    #: twice it, the focal search): px at a 1280-px long side, scaled with the working image but
+    #: never below half of it (:meth:`ransac_px`).
     ransac_threshold_px: float = 1.0
     ransac_confidence: float = 0.9999
     ransac_max_iters: int = 10000
+
+    def ransac_px(self, px_scale: float) -> float:
+        """The inlier threshold in pixels of an image ``px_scale`` times the 1280-px reference."""
+        return self.ransac_threshold_px * max(px_scale, 0.5)
 
 
 @dataclass
@@ -288,6 +294,32 @@ class InpaintConfig:
 
 
 @dataclass
+class FusionConfig:
+    """Choosing, per hole pixel, which reference supplies it (:mod:`geofill.fusion`). Pixel
+    distances are at a 1280-px long side and scale with the image."""
+
+    #: How references' regions meet: "graphcut" (OpenCV's colour-gradient graph-cut seams between
+    #: the overlapping references, then a short feather) or "feather" (per-pixel best reference,
+    #: blended over ``feather_px``).
+    seams: Literal["graphcut", "feather"] = "graphcut"
+    #: Width (px) of the blend across the boundary between two references' regions.
+    feather_px: float = 6.0
+    #: Band error (mean absolute difference, 0-255, on the known ring after colour correction) at
+    #: which a reference's score halves.
+    band_error_scale: float = 12.0
+    #: Distance (px) from a mesh cut or the render's border below which a pixel's score falls.
+    edge_distance_px: float = 16.0
+    #: Viewing-direction change (deg, target ray vs. source ray at the surface) at which a
+    #: reference's score halves.
+    angle_scale_deg: float = 30.0
+    #: A reference's candidate region keeps the pixels whose score is at least this fraction of
+    #: the best reference's there (the seam is searched only inside such overlaps).
+    candidate_ratio: float = 0.5
+    #: References processed at once (threads); 1 runs them one after the other.
+    parallel: int = 1
+
+
+@dataclass
 class FillConfig:
     """Every setting of one fill."""
 
@@ -299,6 +331,7 @@ class FillConfig:
     render: RenderConfig = field(default_factory=RenderConfig)
     inpaint: InpaintConfig = field(default_factory=InpaintConfig)
     refine: RefineConfig = field(default_factory=RefineConfig)
+    fusion: FusionConfig = field(default_factory=FusionConfig)
     #: Geometry (matching, pose, depth, optimisation) runs with the long side capped at this (px);
     #: rendering and compositing run at the input resolution.
     working_max_side: int = 1280
@@ -332,6 +365,12 @@ class FillConfig:
             raise ConfigError(f"config file {path} is not valid JSON: {exc}") from exc
         return cls.from_dict(data)
 
+    def preset(self, name: str) -> FillConfig:
+        """Copy with the named preset (:data:`PRESETS`) applied."""
+        if name not in PRESETS:
+            raise ConfigError(f"unknown preset '{name}'; presets: {', '.join(sorted(PRESETS))}")
+        return self.updated(PRESETS[name])
+
     def updated(self, dotted: dict[str, Any]) -> FillConfig:
         """Copy with ``{"section.key": value}`` overrides applied (CLI flags, ablation variants)."""
         data = self.to_dict()
@@ -346,6 +385,36 @@ class FillConfig:
                 raise ConfigError(f"unknown config key '{key}'")
             node[leaf] = value
         return FillConfig.from_dict(data)
+
+
+#: Named configurations (``--preset NAME``, ``FillConfig.preset``; ``geofill eval`` runs each as
+#: ``geofill_<name>``): the paper's settings and the ablations, as overrides of the defaults.
+PRESETS: dict[str, dict[str, Any]] = {
+    # The paper's fixed focal: 750 px at a 1280-px long side, EXIF ignored, nothing estimated.
+    "fixed_focal": {"intrinsics.estimate": "none", "intrinsics.use_exif": False},
+    # Refinement and merge: the render pasted as is; flow only; colour only; other colour models.
+    "no_refine": {"refine.colour": "none", "refine.flow": False, "refine.feather_px": 0.0},
+    "flow": {"refine.colour": "none", "refine.flow": True},
+    "colour": {"refine.flow": False},
+    "global": {"refine.colour": "global"},
+    "poisson": {"refine.colour": "poisson"},
+    # Joint optimisation: off, the paper's solver, and the paper's loss / weight-map ablations.
+    "init": {"optimize.enabled": False},
+    "paper": {"optimize.solver": "paper"},
+    "no_photo": {"optimize.use_photo": False},
+    "no_feat": {"optimize.use_feat": False},
+    "no_negd": {"optimize.use_negd": False},
+    "no_hole_w": {"optimize.use_hole_weight": False},
+    "no_edge_w": {"optimize.use_edge_weight": False},
+    "uniform_w": {"optimize.use_hole_weight": False, "optimize.use_edge_weight": False},
+    "refine_focal": {"optimize.refine_focal": True},
+    # Depth backends by name (the default ``auto`` picks fused or stereo).
+    "sparse": {"depth.backend": "sparse"},
+    "stereo": {"depth.backend": "stereo"},
+    "fused": {"depth.backend": "fused"},
+    # Several references: per-pixel winners blended, without the graph-cut seams.
+    "feather": {"fusion.seams": "feather"},
+}
 
 
 def _build(cls: type, data: Any, where: str):

@@ -43,38 +43,88 @@ def draw_matches(target: np.ndarray, source: np.ndarray, pts_t: np.ndarray, pts_
     return canvas
 
 
+#: Coverage colours: reference k uses PALETTE[(k - 1) % len]; single-image inpainting is red.
+PALETTE = np.array(
+    [(0, 200, 0), (0, 120, 255), (255, 200, 0), (200, 0, 255), (0, 220, 220), (255, 120, 0)], np.uint8
+)
+PAINTED = np.array((220, 0, 0), np.uint8)
+
+
+def coverage_rgb(result: FillResult) -> np.ndarray:
+    """HxWx3 uint8: the target dimmed outside the hole; inside, each reference's pixels in its
+    :data:`PALETTE` colour and single-image inpainting in red."""
+    m = result.source_map
+    out = (result.image.astype(np.float32) * 0.35).astype(np.uint8)
+    out[m == 0] = PAINTED
+    for k in np.unique(m[m > 0]):
+        out[m == k] = PALETTE[(int(k) - 1) % len(PALETTE)]
+    return out
+
+
+def _to_u8(image: np.ndarray) -> np.ndarray:
+    return (np.clip(image, 0, 1) * 255 + 0.5).astype(np.uint8)
+
+
+def _tile(image: np.ndarray, text: str, height: int) -> np.ndarray:
+    h, w = image.shape[:2]
+    out = cv2.resize(image, (max(round(w * height / h), 1), height), interpolation=cv2.INTER_AREA)
+    cv2.rectangle(out, (0, 0), (min(out.shape[1], 10 + 9 * len(text)), 22), (0, 0, 0), -1)
+    cv2.putText(out, text, (5, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1, cv2.LINE_AA)
+    return out
+
+
+def overview_sheet(result: FillResult, target: np.ndarray, hole: np.ndarray, height: int = 300) -> np.ndarray:
+    """One picture of the fill: target with the hole, each reference (with its share of the hole
+    or why it was dropped), the fill and the coverage, on rows of at most four tiles."""
+    marked = target.copy()
+    marked[hole] = (marked[hole] * 0.4 + np.array([255, 0, 255]) * 0.6).astype(np.uint8)
+    tiles = [_tile(marked, "target + hole", height)]
+    for ref, frac in zip(result.references, result.report.supplied_fraction, strict=True):
+        note = f"ref {ref.index}: dropped" if ref.dropped else f"ref {ref.index}: {100 * frac:.0f}% of hole"
+        tiles.append(_tile(ref.source, note, height))
+    tiles.append(_tile(result.image, "fill", height))
+    tiles.append(
+        _tile(coverage_rgb(result), f"coverage ({100 * result.report.painted_fraction:.0f}% painted)", height)
+    )
+    rows, width = [], max(sum(t.shape[1] for t in tiles[i : i + 4]) for i in range(0, len(tiles), 4))
+    for i in range(0, len(tiles), 4):
+        row = np.concatenate(tiles[i : i + 4], axis=1)
+        rows.append(np.pad(row, ((0, 0), (0, width - row.shape[1]), (0, 0))))
+    return np.concatenate(rows, axis=0)
+
+
 def write_debug(out_dir: str | Path, result: FillResult, hole: np.ndarray, cfg: FillConfig) -> list[Path]:
-    """Write the debug images and report.json into ``out_dir`` (created); returns the paths."""
+    """Write the debug images and report.json into ``out_dir`` (created); returns the paths.
+    Per reference ``i``: ``matches_<i>.jpg``, ``depth_<i>.png``/``.npy``, ``warped_<i>.png`` (the
+    rendered source), ``refined_<i>.png``; for the fill: ``coverage.png`` (per-reference colours,
+    red = single-image inpainting), ``overview.jpg`` and ``report.json``."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    art, written = result.artifacts, []
+    written: list[Path] = []
 
     def save(name: str, rgb: np.ndarray) -> None:
         write_image_atomic(out / name, rgb)
         written.append(out / name)
 
-    if art.views is not None and art.matches is not None:
-        v = art.views
-        to_u8 = lambda im: (np.clip(im, 0, 1) * 255 + 0.5).astype(np.uint8)  # noqa: E731
-        target = to_u8(v.target)
-        target[v.hole] = (target[v.hole] * 0.4 + np.array([255, 0, 255]) * 0.6).astype(np.uint8)
-        save(
-            "matches.jpg",
-            draw_matches(target, to_u8(v.source), art.matches.pts_target, art.matches.pts_source),
-        )
-    if art.depth is not None:
-        save("depth.png", colourise(1.0 / art.depth.depth))
-        np.save(out / "depth.npy", art.depth.depth)
-        written.append(out / "depth.npy")
-    if art.warped is not None and art.render is not None:
-        save("warped.png", art.warped)
-        cov = np.zeros((*hole.shape, 3), np.uint8)
-        cov[art.render.alpha] = (90, 90, 90)
-        cov[hole & art.render.alpha] = (0, 200, 0)
-        cov[hole & ~art.render.alpha] = (220, 0, 0)
-        save("coverage.png", cov)  # green: hole filled from source; red: single-image inpainting
-    if art.refined is not None:
-        save("refined.png", art.refined.image)  # after residual flow and colour correction
+    for ref in result.references:
+        i = ref.index
+        if ref.views is not None and ref.matches is not None:
+            v = ref.views
+            target = _to_u8(v.target)
+            target[v.hole] = (target[v.hole] * 0.4 + np.array([255, 0, 255]) * 0.6).astype(np.uint8)
+            m = ref.matches
+            save(f"matches_{i}.jpg", draw_matches(target, _to_u8(v.source), m.pts_target, m.pts_source))
+        if ref.depth is not None:
+            save(f"depth_{i}.png", colourise(1.0 / ref.depth.depth))
+            np.save(out / f"depth_{i}.npy", ref.depth.depth)
+            written.append(out / f"depth_{i}.npy")
+        if ref.render is not None:
+            save(f"warped_{i}.png", ref.render.warped)
+        if ref.refined is not None:
+            save(f"refined_{i}.png", ref.refined.image)  # after residual flow and colour correction
+    save("coverage.png", coverage_rgb(result))
+    target = result.image.copy()
+    save("overview.jpg", overview_sheet(result, target, hole))
     report = result.report.to_dict() | {"config": cfg.to_dict()}
     (out / "report.json").write_text(json.dumps(report, indent=2) + "\n")
     written.append(out / "report.json")

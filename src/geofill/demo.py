@@ -34,7 +34,9 @@ def run_demo(out_dir: Path, seed: int = 0, quiet: bool = False, width: int = 640
     cfg = FillConfig()
     result = fill(pair.target, pair.hole, pair.source, cfg, progress=prog)
     single = inpaint_single(pair.target, pair.hole, cfg.inpaint)
-    rot_err, t_err = pose_errors_deg(np.array(result.report.pose_source_to_target), pair.T_source_to_target)
+    ref = result.references[0]
+    T = ref.geometry.T if ref.geometry is not None else np.eye(4)
+    rot_err, t_err = pose_errors_deg(T, pair.T_source_to_target)
     numbers = {
         "scene": {"seed": seed, "width": width, "height": height, "hole_fraction": float(pair.hole.mean())},
         "geofill": {
@@ -42,7 +44,7 @@ def run_demo(out_dir: Path, seed: int = 0, quiet: bool = False, width: int = 640
             "ssim_hole": ssim(result.image, pair.target, pair.hole),
             "psnr_db": psnr(result.image, pair.target),
             "status": result.report.status,
-            "hole_coverage": result.report.hole_coverage,
+            "hole_coverage": result.report.supplied_fraction[0],
             "rotation_error_deg": rot_err,
             "translation_direction_error_deg": t_err,
             "time_s": sum(result.report.timings_s.values()),

@@ -74,3 +74,9 @@ class OutputError(GeoFillError):
     """An output path cannot be written (unsupported extension, missing or read-only folder, I/O error)."""
 
     exit_code = 4
+
+
+class ReferenceUnusable(Exception):
+    """A reference photo cannot help this fill (too few matches, no reliable pose, no depth, it
+    does not see the hole); the message is the reason shown to the user. The fill drops that
+    reference and goes on with the others. Not a :class:`GeoFillError`: it never reaches the CLI."""

@@ -102,7 +102,7 @@ class FocalProfile:
         ]
 
 
-@dataclass
+@dataclass(frozen=True)
 class FocalEstimate:
     """Result of the focal stage: the intrinsics the pose uses, and how they were decided.
 
@@ -135,9 +135,9 @@ class FocalEstimate:
             )
         return f"{self.status}: {self.reason}"
 
-    def to_json(self) -> dict[str, Any]:
-        """Report fields; the focal lengths themselves (input pixels) are in the report's
-        ``intrinsics_target`` / ``intrinsics_source``."""
+    def report(self) -> dict[str, Any]:
+        """Report fields; the focal lengths themselves (input pixels) are in the reference
+        report's ``intrinsics_target`` / ``intrinsics_source``."""
         st, ss = self.scales
         return {
             "status": self.status,

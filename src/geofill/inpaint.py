@@ -47,6 +47,14 @@ class Inpainter:
     description: str
     run: Callable[[np.ndarray, np.ndarray], np.ndarray]
 
+    def fill(self, image: np.ndarray, hole: np.ndarray) -> np.ndarray:
+        """``image`` (HxWx3 uint8) with ``hole`` (bool) filled from its surroundings, the rest kept."""
+        if not hole.any():
+            return image.copy()
+        out = self.run(image, hole)
+        np.copyto(out, image, where=~hole[..., None])
+        return out
+
 
 def resolve_lama_model(
     cfg: InpaintConfig, say: Callable[[str], None] | None = None
@@ -104,8 +112,4 @@ def get_inpainter(cfg: InpaintConfig, say: Callable[[str], None] | None = None) 
 
 def inpaint_single(image: np.ndarray, hole: np.ndarray, cfg: InpaintConfig) -> np.ndarray:
     """Fill ``hole`` (bool) of an HxWx3 uint8 image from its surroundings; other pixels unchanged."""
-    if not hole.any():
-        return image.copy()
-    out = get_inpainter(cfg).run(image, hole)
-    np.copyto(out, image, where=~hole[..., None])
-    return out
+    return get_inpainter(cfg).fill(image, hole)

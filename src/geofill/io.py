@@ -113,6 +113,10 @@ class LoadedImage:
 # Public API
 
 
+#: File name extensions of the image formats geofill reads (``--sources DIR`` picks these).
+IMAGE_SUFFIXES = frozenset({".png", ".jpg", ".jpeg", ".webp", ".tif", ".tiff"})
+
+
 def read_image(path: str | os.PathLike, *, max_pixels: int = 60_000_000, min_side: int = 64) -> LoadedImage:
     """Read a PNG / JPEG / WebP / TIFF image as HxWx3 uint8 RGB with its EXIF orientation applied.
 

@@ -8,6 +8,7 @@ focal-length estimation (without K) both start from."""
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import cv2
 import numpy as np
@@ -20,7 +21,7 @@ ROBUST_METHODS = {"magsac": cv2.USAC_MAGSAC, "ransac": cv2.RANSAC, "lmeds": cv2.
 MIN_MATCHES_FOR_F = 12
 
 
-@dataclass
+@dataclass(frozen=True)
 class Matches:
     """Verified correspondences between target and source, in working-resolution pixels.
 
@@ -37,6 +38,17 @@ class Matches:
 
     def __len__(self) -> int:
         return int(self.pts_target.shape[0])
+
+    def summary(self) -> str:
+        return f"{len(self)} verified of {self.n_tentative} tentative matches"
+
+    def report(self) -> dict[str, Any]:
+        return {
+            "n_keypoints_target": self.n_keypoints_target,
+            "n_keypoints_source": self.n_keypoints_source,
+            "n_tentative": self.n_tentative,
+            "n_verified": len(self),
+        }
 
 
 def to_gray_u8(image: np.ndarray) -> np.ndarray:
@@ -111,7 +123,7 @@ def match_pair(
             ms,
             mt,
             ROBUST_METHODS[cfg.robust_method],
-            cfg.ransac_threshold_px * max(scale_px, 0.5),
+            cfg.ransac_px(scale_px),
             cfg.ransac_confidence,
             cfg.ransac_max_iters,
         )

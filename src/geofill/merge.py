@@ -11,8 +11,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from .config import InpaintConfig
-from .inpaint import inpaint_single
+from .inpaint import Inpainter
 
 
 def blend_map(hole: np.ndarray, alpha: np.ndarray, feather_px: float) -> np.ndarray:
@@ -39,18 +38,18 @@ def merge_fill(
     hole: np.ndarray,
     render: np.ndarray | None,
     alpha: np.ndarray | None,
-    inpaint: InpaintConfig,
+    inpainter: Inpainter,
     feather_px: float = 0.0,
 ) -> np.ndarray:
     """Composite of ``target`` (HxWx3 uint8), the ``render`` (HxWx3 uint8, valid where ``alpha``)
     and single-image inpainting; without a render the whole hole is inpainted. Pixels outside
     ``hole`` are the target's, byte for byte."""
     if render is None or alpha is None:
-        return inpaint_single(target, hole, inpaint)
+        return inpainter.fill(target, hole)
     m = blend_map(hole, alpha, feather_px)
     pasted = target.copy()
     np.copyto(pasted, render, where=(m > 0)[..., None])
-    out = inpaint_single(pasted, hole & (m < 1.0), inpaint)
+    out = inpainter.fill(pasted, hole & (m < 1.0))
     ramp = (m > 0) & (m < 1)
     if ramp.any():
         w = m[ramp][:, None]

@@ -1,7 +1,17 @@
-"""The fill as composable stages: prepare -> match -> pose -> triangulate -> depth -> render -> composite.
+"""The fill as a flat sequence of typed stages.
 
-Each stage takes and returns small typed objects; :func:`fill` chains them, times them, and turns
-every degenerate case into a single-image fallback with the reason in the report (never a crash).
+Per reference photo (:func:`run_reference`)::
+
+    prepare -> match -> focal -> pose -> triangulate -> depth -> optimize -> render -> refine
+
+then, once for the fill (:func:`fill`): fuse the references' renders -> composite with single-image
+inpainting. Each stage is a function from typed inputs to a frozen result that owns its
+``summary()`` line (printed with the stage's time) and its ``report()`` section. A reference that
+cannot help raises :class:`geofill.errors.ReferenceUnusable` in whichever stage finds out; it is
+dropped with that reason and the others go on. Any other exception is a bug and propagates.
+
+:func:`run_reference` stops after any stage (``until=``) and resumes from the artifacts of an
+earlier run (``resume=``): benchmarks and the evaluation use that instead of patching internals.
 Geometry runs at a working resolution (long side <= ``working_max_side``); rendering and compositing
 run at the input resolution.
 """
@@ -9,378 +19,368 @@ run at the input resolution.
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass, field
+from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
-import cv2
 import numpy as np
 
 from .camera import Intrinsics
 from .config import FillConfig
-from .depth import DepthContext, choose_backend, get_backend
-from .depth.align import AlignedDepth, align_depth
+from .depth import BackendChoice, DepthContext, choose_backend
+from .depth.stage import SourceDepth, estimate_depth, rotation_only_depth
+from .errors import ArrayFormatError, ReferenceUnusable
 from .focal import FocalEstimate, estimate_focal
-from .inpaint import get_inpainter
-from .intrinsics import ExifLens, resolve_intrinsics
+from .fusion import Fusion, fuse_references
+from .geometry import Geometry, optimize_geometry
+from .inpaint import Inpainter, get_inpainter
+from .intrinsics import ExifLens
 from .io import as_rgb_uint8, validate_pair
 from .matching import Matches, match_pair
 from .merge import merge_fill
-from .optimize import OptimizationResult, optimize_pose_depth
 from .pose import PoseEstimate, estimate_pose
 from .progress import Progress
 from .refine import RefinedRender, refine_render
-from .render import RenderResult, render_mesh
+from .render import ReferenceRender, render_reference
+from .resolution import config_px
 from .triangulation import TriangulatedPoints, triangulate
+from .views import WorkingViews, prepare_views
 
-#: Margin (px at a 1280-px long side) around the hole's bounding box that is rendered too: the
-#: known ring around the hole is what colour correction and seam checks compare against.
-RENDER_MARGIN_PX = 48
-
-
-@dataclass
-class WorkingViews:
-    """Both images as float32 RGB in [0, 1] at working resolution, with their intrinsics."""
-
-    target: np.ndarray
-    source: np.ndarray
-    hole: np.ndarray  # bool, working resolution
-    K_target: Intrinsics
-    K_source: Intrinsics
-    px_scale: float  # working long side / 1280: converts config pixel distances
+#: The per-reference stages in order, as (stage name, artifact field).
+REFERENCE_STAGES: tuple[tuple[str, str], ...] = (
+    ("prepare", "views"),
+    ("match", "matches"),
+    ("focal", "focal"),
+    ("pose", "pose"),
+    ("triangulate", "points"),
+    ("depth", "depth"),
+    ("optimize", "geometry"),
+    ("render", "render"),
+    ("refine", "refined"),
+)
 
 
-@dataclass
-class FillReport:
-    """What happened, for humans and for ``--debug-dir``'s report.json. Units: px, degrees, seconds."""
+@dataclass(frozen=True)
+class FillContext:
+    """What every reference shares: the target (hole blanked), its hole, the resolved depth backend
+    and the configuration. Built once per fill by :func:`prepare_fill`."""
 
-    status: str = "reference"  # "reference" (source used) or "single_image" (fallback)
-    fallbacks: list[str] = field(default_factory=list)
-    intrinsics_target: dict[str, Any] = field(default_factory=dict)
-    intrinsics_source: dict[str, Any] = field(default_factory=dict)
-    focal: dict[str, Any] = field(default_factory=dict)  # focal stage: status, reason, candidates, profile
-    working_size_target: tuple[int, int] = (0, 0)
-    working_size_source: tuple[int, int] = (0, 0)
-    pose_status: str = ""
-    pose_source_to_target: list[list[float]] = field(default_factory=list)
-    median_parallax_deg: float = 0.0
-    n_keypoints_target: int = 0
-    n_keypoints_source: int = 0
-    n_tentative_matches: int = 0
-    n_verified_matches: int = 0
-    n_pose_inliers: int = 0
-    n_triangulated: int = 0
-    depth_backend: str = ""
-    depth_choice: str = ""  # which depth backend ran and why (``auto`` says what it found)
-    depth_fit: dict[str, Any] = field(default_factory=dict)
-    hole_pixels: int = 0
-    hole_coverage: float = 0.0  # fraction of hole pixels the rendered source supplies
-    refine: dict[str, Any] = field(default_factory=dict)  # geofill.refine.RefineInfo
-    inpaint_method: str = ""  # single-image inpainter used, and why (geofill.inpaint)
-    optimization: dict[str, Any] = field(default_factory=dict)  # OptimizationReport (optimize stage)
-    timings_s: dict[str, float] = field(default_factory=dict)
-
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
-
-    def to_json(self) -> str:
-        return json.dumps(self.to_dict(), indent=2)
+    target: np.ndarray  # HxWx3 uint8, hole pixels zeroed
+    hole: np.ndarray  # HxW bool
+    target_exif: ExifLens | None
+    depth_choice: BackendChoice
+    inpainter: Inpainter
+    cfg: FillConfig
 
 
-@dataclass
-class FillArtifacts:
-    """Intermediate results (for debugging, evaluation and later stages); None where not reached."""
+@dataclass(frozen=True)
+class ReferenceArtifacts:
+    """One reference's stage results so far (None where not reached) and, if it was dropped, why."""
 
+    index: int  # 1-based, in the order the references were given
+    source: np.ndarray  # HxWx3 uint8 as given
+    exif: ExifLens | None = None
     views: WorkingViews | None = None
     matches: Matches | None = None
     focal: FocalEstimate | None = None
     pose: PoseEstimate | None = None
     points: TriangulatedPoints | None = None
-    depth: AlignedDepth | None = None
-    optimization: OptimizationResult | None = None  # the pose/depth/intrinsics the render used
-    render: RenderResult | None = None
-    warped: np.ndarray | None = None  # HxWx3 uint8 rendered source at target resolution
+    depth: SourceDepth | None = None
+    geometry: Geometry | None = None
+    render: ReferenceRender | None = None
     refined: RefinedRender | None = None
+    dropped: str = ""  # the reason this reference cannot help ("" while it can)
+    timings_s: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def usable(self) -> bool:
+        """Reached the refine stage without being dropped."""
+        return self.refined is not None and not self.dropped
+
+    def report(self) -> dict[str, Any]:
+        """This reference's report: every stage reached, by stage name, plus the intrinsics used."""
+        out: dict[str, Any] = {"index": self.index, "status": "dropped" if self.dropped else "used"}
+        out["reason"] = self.dropped
+        K = self.intrinsics()
+        if K is not None:
+            h_t, w_t = self.views.target_shape
+            h_s, w_s = self.source.shape[:2]
+            out["intrinsics_target"] = K[0].resized(w_t, h_t).to_json()
+            out["intrinsics_source"] = K[1].resized(w_s, h_s).to_json()
+        for stage, name in REFERENCE_STAGES:
+            result = getattr(self, name)
+            if result is not None:
+                out[stage] = result.report()
+        out["timings_s"] = dict(self.timings_s)
+        return out
+
+    def intrinsics(self) -> tuple[Intrinsics, Intrinsics] | None:
+        """(target, source) intrinsics at working resolution as the latest stage left them."""
+        for holder in (self.geometry, self.focal, self.views):
+            if holder is not None:
+                return holder.K_target, holder.K_source
+        return None
 
 
 @dataclass
+class FillReport:
+    """What happened, for humans and for ``--debug-dir``'s report.json. Units: px, degrees, seconds.
+
+    ``status``: ``reference`` (at least one reference supplied pixels) or ``single_image`` (every
+    reference was dropped: the hole is painted by single-image inpainting; ``fallbacks`` says why)."""
+
+    status: str = "reference"
+    fallbacks: list[str] = field(default_factory=list)
+    hole_pixels: int = 0
+    references: list[dict[str, Any]] = field(default_factory=list)
+    supplied_fraction: list[float] = field(default_factory=list)  # per reference, of the hole
+    painted_fraction: float = 1.0  # of the hole, by single-image inpainting
+    fusion: dict[str, Any] = field(default_factory=dict)
+    inpaint_method: str = ""
+    depth_choice: str = ""
+    timings_s: dict[str, float] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+    def to_json(self) -> str:
+        return json.dumps(self.to_dict(), indent=2)
+
+
+@dataclass(frozen=True)
 class FillResult:
     image: np.ndarray  # HxWx3 uint8; pixels outside the hole are the target's, byte for byte
     report: FillReport
-    artifacts: FillArtifacts
+    references: list[ReferenceArtifacts]
+    fusion: Fusion | None
+    #: HxW int16 at target size: -1 outside the hole, 0 painted by single-image inpainting,
+    #: k >= 1 supplied by reference k (1-based, in the order given).
+    source_map: np.ndarray
 
 
-class Fallback(Exception):
-    """Internal: the source cannot help; the message is the reason shown to the user."""
-
-
-def _resize_long(image: np.ndarray, max_side: int) -> np.ndarray:
-    h, w = image.shape[:2]
-    s = max_side / max(h, w)
-    if s >= 1.0:
-        return image
-    size = (max(round(w * s), 1), max(round(h * s), 1))
-    return cv2.resize(image, size, interpolation=cv2.INTER_AREA)
-
-
-def prepare(
-    target: np.ndarray,
-    hole: np.ndarray,
-    source: np.ndarray,
-    cfg: FillConfig,
-    target_exif: ExifLens | None,
-    source_exif: ExifLens | None,
-) -> WorkingViews:
-    """Working-resolution float views and per-image intrinsics (resolved at input size, then resized)."""
-    ic = cfg.intrinsics
-    K_t = resolve_intrinsics(target.shape[1], target.shape[0], ic, target_exif, ic.target)
-    K_s = resolve_intrinsics(source.shape[1], source.shape[0], ic, source_exif, ic.source)
-    t = _resize_long(target, cfg.working_max_side)
-    s = _resize_long(source, cfg.working_max_side)
-    # Area-resampled: any hole pixel of the input makes its working pixel a hole (no object leaks).
-    hole_w = _resize_long(hole.astype(np.float32), cfg.working_max_side) > 0
-    return WorkingViews(
-        t.astype(np.float32) / 255.0,
-        s.astype(np.float32) / 255.0,
-        hole_w,
-        K_t.resized(t.shape[1], t.shape[0]),
-        K_s.resized(s.shape[1], s.shape[0]),
-        max(t.shape[:2]) / 1280.0,
-    )
-
-
-def render_roi(hole: np.ndarray, margin: int) -> tuple[int, int, int, int]:
-    """Bounding box (x0, y0, x1, y1), half-open, of the hole grown by ``margin`` px, clipped."""
-    ys, xs = np.nonzero(hole)
-    h, w = hole.shape
-    return (
-        max(int(xs.min()) - margin, 0),
-        max(int(ys.min()) - margin, 0),
-        min(int(xs.max()) + margin + 1, w),
-        min(int(ys.max()) + margin + 1, h),
-    )
-
-
-def composite(
-    target: np.ndarray, hole: np.ndarray, warped: np.ndarray | None, alpha: np.ndarray | None, cfg: FillConfig
-) -> np.ndarray:
-    """Rendered source inside the hole where it exists, single-image inpainting for the rest,
-    merged with a feathered blending map (:func:`geofill.merge.merge_fill`); pixels outside the
-    hole are copied from ``target`` unchanged."""
-    feather = cfg.refine.feather_px * max(hole.shape) / 1280.0
-    return merge_fill(target, hole, warped, alpha, cfg.inpaint, feather)
-
-
-def fill(
+def prepare_fill(
     target: np.ndarray,
     mask: np.ndarray,
-    source: np.ndarray,
-    config: FillConfig | None = None,
-    *,
+    sources: Sequence[np.ndarray],
+    cfg: FillConfig,
     target_exif: ExifLens | None = None,
-    source_exif: ExifLens | None = None,
-    progress: Progress | None = None,
-) -> FillResult:
-    """Fill the hole ``mask`` (True/255 = hole) of ``target`` with content from ``source``.
-
-    Images are HxWx3 uint8 RGB (other dtypes/channels are normalised); target and source may
-    differ in size. Raises :class:`geofill.errors.InputError` subclasses for bad inputs; any
-    geometric failure falls back to single-image inpainting, with the reason in
-    ``result.report.fallbacks``.
-    """
-    cfg = config or FillConfig()
-    prog = progress or Progress(quiet=True)
-    report = FillReport()
-    art = FillArtifacts()
-    with prog.stage("check inputs"):
-        target = as_rgb_uint8(target)
-        source = as_rgb_uint8(source)
+    say: Callable[[str], None] | None = None,
+) -> FillContext:
+    """Check the inputs, blank the hole, and resolve the depth backend and the inpainter once."""
+    target = as_rgb_uint8(target)
+    hole = None
+    for s in sources:
         hole = validate_pair(
             target,
             mask,
-            source,
+            as_rgb_uint8(s),
             min_side=cfg.min_side_px,
             max_pixels=cfg.max_pixels,
             max_mask_fraction=cfg.max_mask_fraction,
         )
-    report.hole_pixels = int(hole.sum())
     # Whatever the hole shows (the object being removed) must not steer the fill: every stage sees
     # it blanked, so the result depends on the known pixels only. Black beat a Telea pre-fill
     # (mean hole PSNR 19.02 vs 18.75 dB on the DEV pairs): keypoints are dropped near the hole
     # anyway, and a flat region gives the stereo and the flow no false texture.
     target = target.copy()
     target[hole] = 0
-    try:
-        warped, alpha = _reference_fill(
-            target, hole, source, cfg, target_exif, source_exif, prog, report, art
-        )
-    except Fallback as exc:
-        report.status = "single_image"
-        report.fallbacks.append(str(exc))
-        prog.say(f"falling back to single-image inpainting: {exc}")
-        warped, alpha = None, None
-    with prog.stage("composite") as notes:
-        report.inpaint_method = get_inpainter(cfg.inpaint, prog.say).description
-        notes.append(f"single-image inpainting: {report.inpaint_method}")
-        image = composite(target, hole, warped, alpha, cfg)
-    report.timings_s = dict(prog.timings)
-    return FillResult(image, report, art)
+    choice = choose_backend(cfg.depth, say)
+    if say is not None:
+        say(f"depth backend: {choice.reason}")
+    return FillContext(target, hole, target_exif, choice, get_inpainter(cfg.inpaint, say), cfg)
 
 
-def _reference_fill(target, hole, source, cfg, target_exif, source_exif, prog, report, art):
-    """Stages that use the source; raise :class:`Fallback` when it cannot help."""
-    with prog.stage("prepare"):
-        views = prepare(target, hole, source, cfg, target_exif, source_exif)
-        art.views = views
-        report.intrinsics_target = views.K_target.resized(target.shape[1], target.shape[0]).to_json()
-        report.intrinsics_source = views.K_source.resized(source.shape[1], source.shape[0]).to_json()
-        report.working_size_target = (views.K_target.width, views.K_target.height)
-        report.working_size_source = (views.K_source.width, views.K_source.height)
+def run_reference(
+    ctx: FillContext,
+    ref: ReferenceArtifacts,
+    progress: Progress | None = None,
+    *,
+    until: str | None = None,
+) -> ReferenceArtifacts:
+    """Run the per-reference stages on ``ref`` (resuming after the last one it holds) up to and
+    including ``until`` (a :data:`REFERENCE_STAGES` name; all by default). A reference that cannot
+    help comes back with ``dropped`` set to the reason; later stages are not run."""
+    names = [s for s, _ in REFERENCE_STAGES]
+    if until is not None and until not in names:
+        raise ValueError(f"unknown stage {until!r}; stages: {names}")
+    prog = progress or Progress(quiet=True)
+    cfg, a = ctx.cfg, ref
+    steps: dict[str, Callable[[ReferenceArtifacts], Any]] = {
+        "prepare": lambda a: prepare_views(ctx.target, ctx.hole, a.source, cfg, ctx.target_exif, a.exif),
+        "match": lambda a: match_pair(a.views.target, a.views.source, a.views.hole, cfg.matching, a.views.px_scale),
+        "focal": lambda a: estimate_focal(a.matches, a.views.K_target, a.views.K_source, cfg.intrinsics, a.views.ransac_px),
+        "pose": lambda a: usable_pose(estimate_pose(a.matches, a.focal.K_target, a.focal.K_source, cfg.geometry, cfg.matching, a.views.px_scale)),
+        "triangulate": lambda a: triangulate_inliers(a.matches, a.pose, a.focal, cfg),
+        "depth": lambda a: source_depth(a.views, a.focal, a.pose, a.points, ctx.depth_choice, a.source.shape, cfg),
+        "optimize": lambda a: optimize_geometry(a.views, a.focal, a.pose, a.depth, a.matches, cfg.optimize),
+        "render": lambda a: render_reference(a.geometry, a.source, ctx.hole, cfg.render, render_margin_px(cfg)),
+        "refine": lambda a: refine_render(ctx.target, ctx.hole, a.source, a.render.render, cfg.refine),
+    }  # fmt: skip
+    for stage, name in REFERENCE_STAGES:
+        if a.dropped:
+            break
+        if getattr(a, name) is None:
+            try:
+                with prog.stage(stage) as notes:
+                    result = steps[stage](a)
+                    notes.append(result.summary())
+            except ReferenceUnusable as exc:
+                prog.say(f"reference {a.index} cannot help: {exc}")
+                a = replace(a, dropped=str(exc))
+            else:
+                a = replace(a, **{name: result})
+        if stage == until:
+            break
+    return replace(a, timings_s={**ref.timings_s, **prog.timings})
 
-    with prog.stage("match") as notes:
-        matches = match_pair(views.target, views.source, views.hole, cfg.matching, views.px_scale)
-        art.matches = matches
-        report.n_keypoints_target = matches.n_keypoints_target
-        report.n_keypoints_source = matches.n_keypoints_source
-        report.n_tentative_matches = matches.n_tentative
-        report.n_verified_matches = len(matches)
-        notes.append(f"{len(matches)} verified of {matches.n_tentative} tentative matches")
 
-    # Focal length: estimated from the matches, before the pose uses it (issue 7).
-    with prog.stage("focal") as notes:
-        focal = estimate_focal(
-            matches,
-            views.K_target,
-            views.K_source,
-            cfg.intrinsics,
-            cfg.matching.ransac_threshold_px * max(views.px_scale, 0.5),
-        )
-        art.focal = focal
-        views.K_target, views.K_source = focal.K_target, focal.K_source
-        report.focal = focal.to_json()
-        report.intrinsics_target = views.K_target.resized(target.shape[1], target.shape[0]).to_json()
-        report.intrinsics_source = views.K_source.resized(source.shape[1], source.shape[0]).to_json()
-        notes.append(focal.summary())
-
-    with prog.stage("pose") as notes:
-        pose = estimate_pose(matches, views.K_target, views.K_source, cfg.geometry, cfg.matching)
-        art.pose = pose
-        report.pose_status = pose.status
-        report.n_pose_inliers = pose.n_inliers
-        report.median_parallax_deg = pose.median_parallax_deg
-        report.pose_source_to_target = pose.T.tolist()
-        notes.append(
-            f"{pose.status}, {pose.n_inliers} inliers, median parallax {pose.median_parallax_deg:.2f} deg"
-        )
+def usable_pose(pose: PoseEstimate) -> PoseEstimate:
+    """``pose`` unless it failed (then the reference cannot help)."""
     if not pose.usable:
-        raise Fallback(pose.reason)
+        raise ReferenceUnusable(pose.reason)
+    return pose
 
+
+def triangulate_inliers(
+    matches: Matches, pose: PoseEstimate, focal: FocalEstimate, cfg: FillConfig
+) -> TriangulatedPoints:
+    """The pose inliers triangulated (none for a pure rotation, which needs no depth)."""
+    inl = pose.inliers if pose.status == "ok" else np.zeros(len(matches), bool)
+    return triangulate(
+        matches.pts_source[inl], matches.pts_target[inl], focal.K_source, focal.K_target, pose.T, cfg.geometry
+    )
+
+
+def source_depth(
+    views: WorkingViews,
+    focal: FocalEstimate,
+    pose: PoseEstimate,
+    points: TriangulatedPoints,
+    choice: BackendChoice,
+    source_shape: tuple[int, ...],
+    cfg: FillConfig,
+) -> SourceDepth:
+    """The depth stage on one reference (constant depth for a pure rotation)."""
     if pose.status == "rotation_only":
-        report.fallbacks.append(pose.reason)
-        prog.say(pose.reason)
-        # Any positive depth renders a pure rotation exactly (the infinite homography).
-        depth_s = np.ones((views.K_source.height, views.K_source.width), np.float32)
-        report.depth_backend = "none (rotation only)"
-    else:
-        with prog.stage("triangulate") as notes:
-            pts = triangulate(
-                matches.pts_source[pose.inliers],
-                matches.pts_target[pose.inliers],
-                views.K_source,
-                views.K_target,
-                pose.T,
-                cfg.geometry,
-            )
-            art.points = pts
-            report.n_triangulated = len(pts)
-            notes.append(f"{len(pts)} points kept of {pose.n_inliers}")
-        with prog.stage("depth") as notes:
-            choice = choose_backend(cfg.depth, prog.say)  # may verify or download weights: timed
-            report.depth_backend, report.depth_choice = choice.name, choice.reason
-            prog.say(f"depth backend: {choice.reason}")
-            depth = _dense_depth(views, pose, pts, source.shape[1::-1], cfg, choice.name)
-            art.depth = depth
-            report.depth_fit = {
-                "scale": depth.scale,
-                "offset": depth.offset,
-                "space": depth.space,
-                "method": depth.method,
-                "n_points": depth.n_points,
-                "median_rel_error": depth.median_rel_error,
-                "negative_fraction": depth.negative_fraction,
-            }
-            notes.append(
-                f"{choice.name}: scale {depth.scale:.4g}, offset {depth.offset:.4g} "
-                f"({depth.space} space, {depth.method}, {depth.n_points} points)"
-            )
-        depth_s = depth.depth
-
-    # Joint pose-depth optimisation (issue 5): refines pose.T, the depth and optionally the focal.
-    T, K_tw, K_sw = pose.T, views.K_target, views.K_source
-    if cfg.optimize.enabled and pose.status == "ok":
-        with prog.stage("optimize") as notes:
-            inl = pose.inliers
-            opt = optimize_pose_depth(
-                views.target, views.hole, views.source, K_tw, K_sw, T, depth,
-                matches.pts_target[inl], matches.pts_source[inl], cfg.optimize,
-            )  # fmt: skip
-            art.optimization = opt
-            report.optimization = opt.report.to_dict()
-            notes.append(opt.report.summary())
-            if opt.report.status == "rejected":
-                report.fallbacks.append(f"optimisation rejected, initial geometry kept: {opt.report.reason}")
-            T, K_tw, K_sw, depth_s = opt.T, opt.K_target, opt.K_source, opt.depth.depth
-            if K_tw.origin == "refined":
-                report.intrinsics_target = K_tw.resized(target.shape[1], target.shape[0]).to_json()
-                report.intrinsics_source = K_sw.resized(source.shape[1], source.shape[0]).to_json()
-
-    with prog.stage("render") as notes:
-        H, W = target.shape[:2]
-        K_t = K_tw.resized(W, H)
-        K_s = K_sw.resized(source.shape[1], source.shape[0])
-        if depth_s.shape != (K_s.height, K_s.width):
-            depth_s = cv2.resize(depth_s, (K_s.width, K_s.height), interpolation=cv2.INTER_LINEAR)
-        roi = render_roi(hole, int(RENDER_MARGIN_PX * max(H, W) / 1280))
-        rendered = render_mesh(depth_s, K_s, K_t, T, cfg.render.edge_threshold, roi)
-        art.render = rendered
-        warped = rendered.sample(source)
-        art.warped = warped
-        coverage = float(rendered.alpha[hole].mean())
-        report.hole_coverage = coverage
-        notes.append(f"source covers {100 * coverage:.1f}% of the hole")
-    if coverage < cfg.render.min_hole_coverage:
-        raise Fallback(
-            f"the source covers only {100 * coverage:.1f}% of the hole "
-            f"(< {100 * cfg.render.min_hole_coverage:.0f}%): it does not see what the hole hides"
-        )
-
-    # Refinement (issue 6): residual flow alignment and colour correction of the render.
-    with prog.stage("refine") as notes:
-        refined = refine_render(target, hole, source, rendered, cfg.refine)
-        art.refined = refined
-        report.refine = asdict(refined.info)
-        i = refined.info
-        notes.append(
-            f"flow {'applied' if i.flow_applied else 'off'} (band median {i.flow_median_band_px:.2f} px), "
-            f"colour {i.colour}: band error {i.band_error_before:.1f} -> {i.band_error_after:.1f}"
-        )
-    return refined.image, refined.alpha
-
-
-def _dense_depth(views, pose, pts, source_size, cfg, backend: str) -> AlignedDepth:
-    """Run depth backend ``backend`` and align it to the triangulated points."""
+        return rotation_only_depth(views.source.shape[:2])
     ctx = DepthContext(
         views.source,
         views.target,
         views.hole,
-        views.K_source,
-        views.K_target,
+        focal.K_source,
+        focal.K_target,
         pose,
-        pts,
-        source_size,
+        points,
+        (source_shape[1], source_shape[0]),
         cfg.depth,
     )
-    try:
-        pred = get_backend(backend).predict(ctx)
-        return align_depth(pred, pts, cfg.geometry)
-    except ValueError as exc:
-        raise Fallback(f"depth stage failed: {exc}") from exc
+    return estimate_depth(ctx, choice, cfg.geometry)
+
+
+def render_margin_px(cfg: FillConfig) -> float:
+    """Margin (px at the 1280-px reference) rendered around the hole's bounding box: the known ring
+    refinement measures on (``refine.band_px``) and half as much again for the flow to move it."""
+    return 1.5 * cfg.refine.band_px
+
+
+def fill(
+    target: np.ndarray,
+    mask: np.ndarray,
+    sources: np.ndarray | Sequence[np.ndarray],
+    config: FillConfig | None = None,
+    *,
+    target_exif: ExifLens | None = None,
+    source_exifs: Sequence[ExifLens | None] | None = None,
+    progress: Progress | None = None,
+) -> FillResult:
+    """Fill the hole ``mask`` (True/255 = hole) of ``target`` with content from ``sources``.
+
+    ``sources`` is one image or a sequence of them (other photos of the scene), each with its own
+    entry in ``source_exifs``. Images are HxWx3 uint8 RGB (other dtypes/channels are normalised);
+    sizes may differ. Raises :class:`geofill.errors.InputError` subclasses for bad inputs. A
+    reference that cannot help is dropped with its reason (``result.report.references``); when
+    none helps, the hole is painted by single-image inpainting (``status == "single_image"``).
+
+    >>> from geofill.synthetic import make_pair
+    >>> pair = make_pair(seed=0, width=320, height=240)
+    >>> result = fill(pair.target, pair.hole, [pair.source])
+    >>> result.report.status, bool((result.image[~pair.hole] == pair.target[~pair.hole]).all())
+    ('reference', True)
+    """
+    cfg = config or FillConfig()
+    prog = progress or Progress(quiet=True)
+    images = [sources] if isinstance(sources, np.ndarray) and sources.ndim == 3 else list(sources)
+    if not images:
+        raise ArrayFormatError("no reference image given: pass at least one source")
+    exifs = list(source_exifs) if source_exifs is not None else [None] * len(images)
+    if len(exifs) != len(images):
+        raise ArrayFormatError(f"{len(exifs)} source EXIF entries for {len(images)} sources")
+    with prog.stage("check inputs"):
+        ctx = prepare_fill(target, mask, images, cfg, target_exif, prog.say)
+    refs = [
+        ReferenceArtifacts(i + 1, as_rgb_uint8(s), e)
+        for i, (s, e) in enumerate(zip(images, exifs, strict=True))
+    ]
+    refs = _run_references(ctx, refs, prog)
+    with prog.stage("fuse") as notes:
+        fusion = fuse_references(ctx.target, ctx.hole, [r for r in refs if r.usable], cfg)
+        notes.append(fusion.summary())
+    with prog.stage("composite") as notes:
+        image = composite(ctx, fusion)
+        notes.append(f"single-image inpainting: {ctx.inpainter.description}")
+    report = _report(ctx, refs, fusion, prog)
+    if report.status == "single_image":
+        prog.say("no reference could help: the hole was painted by single-image inpainting")
+    return FillResult(image, report, refs, fusion, fusion.source_map(ctx.hole))
+
+
+def _run_references(
+    ctx: FillContext, refs: list[ReferenceArtifacts], prog: Progress
+) -> list[ReferenceArtifacts]:
+    """Every reference through its stages, ``fusion.parallel`` at a time. Each gets its own
+    progress (prefixed with its number when there are several) so timings never mix."""
+    many = len(refs) > 1
+
+    def one(ref: ReferenceArtifacts) -> ReferenceArtifacts:
+        return run_reference(ctx, ref, prog.child(f"ref {ref.index}") if many else prog.child(""))
+
+    workers = max(1, min(ctx.cfg.fusion.parallel, len(refs)))
+    if workers == 1:
+        return [one(r) for r in refs]
+    with ThreadPoolExecutor(workers) as pool:
+        return list(pool.map(one, refs))
+
+
+def composite(ctx: FillContext, fusion: Fusion) -> np.ndarray:
+    """The fused render inside the hole where it exists, single-image inpainting for the rest,
+    merged with a feathered blending map (:func:`geofill.merge.merge_fill`); pixels outside the
+    hole are copied from the target unchanged."""
+    feather = config_px(ctx.cfg.refine.feather_px, ctx.hole.shape)
+    return merge_fill(ctx.target, ctx.hole, fusion.image, fusion.alpha, ctx.inpainter, feather)
+
+
+def _report(ctx: FillContext, refs: list[ReferenceArtifacts], fusion: Fusion, prog: Progress) -> FillReport:
+    supplied = fusion.supplied_fractions(ctx.hole, len(refs))
+    used = [r for r in refs if r.usable]
+    fallbacks = [f"reference {r.index}: {r.dropped}" for r in refs if r.dropped]
+    for r in used:
+        opt = r.geometry.optimization
+        if opt is not None and opt.status == "rejected":
+            fallbacks.append(
+                f"reference {r.index}: optimisation rejected, initial geometry kept: {opt.reason}"
+            )
+        if r.pose.status == "rotation_only":
+            fallbacks.append(f"reference {r.index}: {r.pose.reason}")
+    return FillReport(
+        status="reference" if used and sum(supplied) > 0 else "single_image",
+        fallbacks=fallbacks,
+        hole_pixels=int(ctx.hole.sum()),
+        references=[r.report() for r in refs],
+        supplied_fraction=supplied,
+        painted_fraction=1.0 - float(sum(supplied)),
+        fusion=fusion.report(),
+        inpaint_method=ctx.inpainter.description,
+        depth_choice=ctx.depth_choice.reason,
+        timings_s=dict(prog.timings),
+    )

@@ -14,6 +14,7 @@ exactly whatever the depth. In that case R is taken from a robust homography fit
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import cv2
 import numpy as np
@@ -26,7 +27,7 @@ from .matching import ROBUST_METHODS, Matches
 MIN_POINTS_E = 8
 
 
-@dataclass
+@dataclass(frozen=True)
 class PoseEstimate:
     """Result of the pose stage.
 
@@ -47,6 +48,18 @@ class PoseEstimate:
     @property
     def usable(self) -> bool:
         return self.status != "failed"
+
+    def summary(self) -> str:
+        return f"{self.status}, {self.n_inliers} inliers, median parallax {self.median_parallax_deg:.2f} deg"
+
+    def report(self) -> dict[str, Any]:
+        return {
+            "status": self.status,
+            "reason": self.reason,
+            "source_to_target": self.T.tolist(),
+            "n_inliers": self.n_inliers,
+            "median_parallax_deg": self.median_parallax_deg,
+        }
 
 
 def normalise(points_px: np.ndarray, K: Intrinsics) -> np.ndarray:
@@ -91,8 +104,10 @@ def estimate_pose(
     K_s: Intrinsics,
     cfg: GeometryConfig,
     match_cfg: MatchingConfig,
+    px_scale: float = 1.0,
 ) -> PoseEstimate:
-    """Source->target pose from ``matches`` (target/source pixels at the resolution of ``K_t``/``K_s``)."""
+    """Source->target pose from ``matches`` (target/source pixels at the resolution of ``K_t``/``K_s``,
+    ``px_scale`` times the 1280-px reference that config pixel distances are given at)."""
     n = len(matches)
     none = np.zeros(n, dtype=bool)
     if n < max(cfg.min_inliers, MIN_POINTS_E):
@@ -102,7 +117,8 @@ def estimate_pose(
     pn_t = normalise(matches.pts_target, K_t)
     pn_s = normalise(matches.pts_source, K_s)
     focal = 0.5 * (np.sqrt(K_t.fx * K_t.fy) + np.sqrt(K_s.fx * K_s.fy))
-    thr = match_cfg.ransac_threshold_px / focal
+    thr_px = match_cfg.ransac_px(px_scale)
+    thr = thr_px / focal
     E, inl = cv2.findEssentialMat(
         pn_s,
         pn_t,
@@ -124,9 +140,7 @@ def estimate_pose(
         t = t.ravel() / np.linalg.norm(t)
         return PoseEstimate(make_pose(R, t), inliers, "ok", "", med_par)
     # Too few E inliers or too little parallax: try the rotation-only model, which needs no depth.
-    rot = _rotation_from_homography(
-        matches.pts_target, matches.pts_source, K_t, K_s, match_cfg.ransac_threshold_px * 2.0
-    )
+    rot = _rotation_from_homography(matches.pts_target, matches.pts_source, K_t, K_s, thr_px * 2.0)
     if rot is not None and rot[1].sum() >= cfg.min_inliers:
         R_h, inl_h = rot
         par_h = parallax_deg(matches.pts_target[inl_h], matches.pts_source[inl_h], K_t, K_s, R_h)

@@ -17,7 +17,8 @@ aligned and the band holds parallax, occlusions and moving objects."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
+from typing import Any
 
 import cv2
 import numpy as np
@@ -262,7 +263,7 @@ class RefineInfo:
     estimate_scale: float = 1.0
 
 
-@dataclass
+@dataclass(frozen=True)
 class RefinedRender:
     """The refined render at target resolution: ``image`` HxWx3 uint8 (zero where ``alpha`` is
     False), its coverage, the flow-corrected correspondence field and what was done."""
@@ -271,6 +272,16 @@ class RefinedRender:
     alpha: np.ndarray
     render: RenderResult
     info: RefineInfo
+
+    def summary(self) -> str:
+        i = self.info
+        return (
+            f"flow {'applied' if i.flow_applied else 'off'} (band median {i.flow_median_band_px:.2f} px), "
+            f"colour {i.colour}: band error {i.band_error_before:.1f} -> {i.band_error_after:.1f}"
+        )
+
+    def report(self) -> dict[str, Any]:
+        return asdict(self.info)
 
 
 def _shrink(image: np.ndarray, scale: float) -> np.ndarray:

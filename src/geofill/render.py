@@ -17,12 +17,19 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 import cv2
 import numpy as np
 from numba import njit
 
 from .camera import Intrinsics
+from .config import RenderConfig
+from .errors import ReferenceUnusable
+from .resolution import config_px
+
+if TYPE_CHECKING:
+    from .geometry import Geometry
 
 #: Barycentric tolerance so pixels on shared edges are not lost between two triangles.
 _EPS_BARY = 1e-7
@@ -60,6 +67,34 @@ class RenderResult:
         win[~self.alpha[rows, cols]] = 0
         out[rows, cols] = win
         return out
+
+
+@dataclass(frozen=True)
+class ReferenceRender:
+    """The render stage's result: the source mesh seen from the target at the target's input
+    resolution, its colours (HxWx3 uint8, zero where not covered) and the hole fraction it covers."""
+
+    render: RenderResult
+    warped: np.ndarray
+    hole_coverage: float
+
+    def summary(self) -> str:
+        return f"source covers {100 * self.hole_coverage:.1f}% of the hole"
+
+    def report(self) -> dict[str, Any]:
+        return {"hole_coverage": self.hole_coverage, "roi": list(self.render.roi or ())}
+
+
+def render_roi(hole: np.ndarray, margin: int) -> tuple[int, int, int, int]:
+    """Bounding box (x0, y0, x1, y1), half-open, of the hole grown by ``margin`` px, clipped."""
+    ys, xs = np.nonzero(hole)
+    h, w = hole.shape
+    return (
+        max(int(xs.min()) - margin, 0),
+        max(int(ys.min()) - margin, 0),
+        min(int(xs.max()) + margin + 1, w),
+        min(int(ys.max()) + margin + 1, h),
+    )
 
 
 def footprint_ok(a: np.ndarray, b: np.ndarray, threshold: float) -> np.ndarray:
@@ -224,3 +259,30 @@ def render_mesh(
         win = (slice(y0, y1), slice(x0, x1))
         _raster_mesh(u, v, z, tri_a, tri_b, near, x0, y0, x1, y1, zbuf[win], mx[win], my[win])
     return RenderResult(mx, my, zbuf, np.isfinite(zbuf), (x0, y0, x1, y1))
+
+
+def render_reference(
+    geometry: Geometry,
+    source: np.ndarray,
+    hole: np.ndarray,
+    cfg: RenderConfig,
+    margin_px: float,
+) -> ReferenceRender:
+    """Render ``source`` (HxWx3 uint8) with ``geometry`` into the target view at the size of
+    ``hole`` (the target's), over the hole's bounding box grown by ``margin_px`` (config px).
+    A reference that covers less than ``cfg.min_hole_coverage`` of the hole cannot help."""
+    H, W = hole.shape
+    K_t = geometry.K_target.resized(W, H)
+    K_s = geometry.K_source.resized(source.shape[1], source.shape[0])
+    depth_s = geometry.depth
+    if depth_s.shape != (K_s.height, K_s.width):
+        depth_s = cv2.resize(depth_s, (K_s.width, K_s.height), interpolation=cv2.INTER_LINEAR)
+    roi = render_roi(hole, int(config_px(margin_px, hole.shape)))
+    rendered = render_mesh(depth_s, K_s, K_t, geometry.T, cfg.edge_threshold, roi)
+    coverage = float(rendered.alpha[hole].mean())
+    if coverage < cfg.min_hole_coverage:
+        raise ReferenceUnusable(
+            f"it covers only {100 * coverage:.1f}% of the hole "
+            f"(< {100 * cfg.min_hole_coverage:.0f}%): it does not see what the hole hides"
+        )
+    return ReferenceRender(rendered, rendered.sample(source), coverage)

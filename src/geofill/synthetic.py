@@ -41,6 +41,7 @@ Everything is drawn from ``np.random.default_rng(seed)``: the same seed gives id
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cache
 
@@ -651,3 +652,43 @@ def _photometric(image: np.ndarray, gain: float, sigma: float, rng: np.random.Ge
     if sigma > 0:
         out += rng.normal(0.0, sigma, image.shape).astype(np.float32)
     return np.clip(np.rint(out), 0, 255).astype(np.uint8)
+
+
+@dataclass
+class SyntheticViews:
+    """A target and several references of one :func:`make_scene` with exact ground truth; what
+    each reference sees of the target is in ``visible`` (per reference, target pixels)."""
+
+    target: np.ndarray  # (H, W, 3) uint8 RGB
+    depth_target: np.ndarray  # (H, W) float32
+    K: np.ndarray  # 3x3, shared by every camera (pixel-centre convention)
+    sources: list[np.ndarray]  # (H, W, 3) uint8 RGB each
+    T_source_to_target: list[np.ndarray]  # 4x4 each
+    visible: list[np.ndarray]  # (H, W) bool each: the target's surface point is seen by that reference
+    scene: Scene
+
+
+def make_views(
+    seed: int = 0,
+    width: int = 320,
+    height: int = 240,
+    motions: Sequence[tuple[str, float, float | None]] = (("sideways", -0.6, -12.0), ("sideways", 0.6, 12.0)),
+    supersample: int = 2,
+) -> SyntheticViews:
+    """Render the target of :func:`make_pair` ``(seed)`` and one reference per ``(motion, baseline,
+    rotation_deg)`` of ``motions`` (as :func:`relative_pose`). The default: one reference stepped
+    left and turned left, one stepped right and turned right, so each misses what the other sees
+    at the opposite border."""
+    scene = make_scene(seed)
+    K = Intrinsics.from_focal(default_focal_px(width, height), width, height).K
+    pose_t = scene.target_pose()
+    target, depth_t = scene.render(K, pose_t, width, height, supersample)
+    centre = float(np.linalg.norm(scene.center - pose_t[:3, 3]))
+    sources, Ts, visible = [], [], []
+    for motion, baseline, rotation in motions:
+        T = relative_pose(motion, baseline, rotation, centre)
+        pose_s = pose_t @ T
+        sources.append(scene.render(K, pose_s, width, height, supersample)[0])
+        Ts.append(T)
+        visible.append(covisible(scene, K, pose_t, depth_t, K, pose_s, (width, height)))
+    return SyntheticViews(target, depth_t, K, sources, Ts, visible, scene)

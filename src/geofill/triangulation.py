@@ -6,6 +6,7 @@ closed form that vectorises over all points, so it is written here (a few lines 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -14,7 +15,7 @@ from .config import GeometryConfig
 from .pose import bearing
 
 
-@dataclass
+@dataclass(frozen=True)
 class TriangulatedPoints:
     """3D points in SOURCE camera coordinates (units of the pose translation) and their pixels."""
 
@@ -31,6 +32,12 @@ class TriangulatedPoints:
     def depth(self) -> np.ndarray:
         """z in the source camera."""
         return self.xyz_source[:, 2]
+
+    def summary(self) -> str:
+        return f"{len(self)} points kept"
+
+    def report(self) -> dict[str, Any]:
+        return {"n_points": len(self)}
 
 
 def project(xyz: np.ndarray, K: Intrinsics) -> np.ndarray:

@@ -19,6 +19,7 @@ from scipy.ndimage import map_coordinates
 from scipy.optimize import least_squares
 
 from ..config import GeometryConfig
+from ..errors import ReferenceUnusable
 from ..triangulation import TriangulatedPoints
 from . import DepthPrediction
 
@@ -94,7 +95,7 @@ def align_depth(pred: DepthPrediction, points: TriangulatedPoints, cfg: Geometry
     if pred.in_pose_units:
         s, b, method = 1.0, 0.0, "identity"
     elif n < MIN_POINTS_AFFINE:
-        raise ValueError(f"only {n} triangulated points fall on valid depth; cannot fit scale/offset")
+        raise ReferenceUnusable(f"only {n} triangulated points fall on valid depth; cannot fit scale/offset")
     else:
         scale_only = pred.metric  # a pure scale is a pure scale in either space
         s, b = fit_affine(x[ok], y[ok], cfg.depth_fit == "robust", scale_only)

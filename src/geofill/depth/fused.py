@@ -12,6 +12,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from ..errors import ReferenceUnusable
+from ..resolution import rescale_points
 from ..triangulation import TriangulatedPoints
 from . import DepthContext, DepthPrediction
 from .align import MIN_POINTS_AFFINE, fit_affine, sample_at
@@ -36,14 +38,14 @@ def fit_to_stereo(
         keep = np.linspace(0, len(ys) - 1, MAX_FIT_PIXELS).astype(int)
         ys, xs = ys[keep], xs[keep]
     h, w = learned.shape
-    uv = (points.uv_source + 0.5) * [w / source_shape[1], h / source_shape[0]] - 0.5
+    uv = rescale_points(points.uv_source, (source_shape[1], source_shape[0]), (w, h))
     x = np.concatenate([learned[ys, xs], sample_at(learned, uv)]).astype(np.float64)
     y = np.concatenate([sweep.inv_depth[ys, xs], 1.0 / points.depth]).astype(np.float64)
     wgt = np.concatenate([sweep.confidence[ys, xs], np.ones(len(points))]).astype(np.float64)
     good = np.isfinite(x) & np.isfinite(y)
     n = int(good.sum())
     if n < MIN_POINTS_AFFINE:
-        raise ValueError(f"only {n} stereo/triangulated samples to fit the learned depth to")
+        raise ReferenceUnusable(f"only {n} stereo/triangulated samples to fit the learned depth to")
     s, b = fit_affine(x[good], y[good], robust=True, weights=wgt[good])
     return s, b, n
 

@@ -6,6 +6,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from ..errors import ReferenceUnusable
+from ..resolution import rescale_points
 from . import DepthContext, DepthPrediction
 from .completion import interpolate_edge_aware, to_uint8
 
@@ -16,12 +18,12 @@ class SparseDepth:
     def predict(self, ctx: DepthContext) -> DepthPrediction:
         pts = ctx.points
         if len(pts) < 3:
-            raise ValueError(f"sparse depth needs triangulated points; got {len(pts)}")
+            raise ReferenceUnusable(f"sparse depth needs triangulated points; got {len(pts)}")
         h, w = ctx.source.shape[:2]
         s = min(1.0, ctx.cfg.sparse_max_side / max(h, w))
         ws, hs = max(round(w * s), 8), max(round(h * s), 8)
         guide = cv2.resize(to_uint8(ctx.source), (ws, hs), interpolation=cv2.INTER_AREA)
-        uv = (pts.uv_source + 0.5) * [ws / w, hs / h] - 0.5
+        uv = rescale_points(pts.uv_source, (w, h), (ws, hs))
         inv_dense = interpolate_edge_aware(guide, uv, 1.0 / pts.depth, out_size=(w, h))
         inv_dense[~(inv_dense > 0)] = np.nan
         return DepthPrediction(inv_dense, "inverse", self.name, in_pose_units=True)

@@ -41,6 +41,7 @@ import numpy as np
 
 from ..camera import Intrinsics
 from ..config import DepthConfig
+from ..errors import ReferenceUnusable
 from ..render import project_source_points, source_pixel_grid
 from . import DepthContext, DepthPrediction
 from .completion import interpolate_edge_aware, to_uint8
@@ -272,7 +273,7 @@ def plane_sweep(ctx: DepthContext) -> SweepResult:
     cfg: DepthConfig = ctx.cfg
     pts = ctx.points
     if len(pts) < 3:
-        raise ValueError(f"stereo needs triangulated points to bound its depth range; got {len(pts)}")
+        raise ReferenceUnusable(f"stereo needs triangulated points to bound its depth range; got {len(pts)}")
     hs0, ws0 = ctx.source.shape[:2]
     s = min(1.0, cfg.stereo_max_side / max(hs0, ws0))
     src_rgb = _resize_to(ctx.source, s)

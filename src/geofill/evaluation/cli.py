@@ -13,6 +13,7 @@ from .masks import DEFAULT_AREA_RANGE, DEFAULT_STROKE_WIDTH_720P
 from .runner import (
     DEFAULT_METHODS,
     METHODS,
+    REFERENCE_MODES,
     load_pairs,
     register_geofill_methods,
     resolve_methods,
@@ -29,6 +30,14 @@ def _area_range(text: str) -> tuple[float, float]:
     if not 0.0 < lo <= hi < 1.0:
         raise argparse.ArgumentTypeError(f"need 0 < LO <= HI < 1, got {text!r}")
     return lo, hi
+
+
+def _reference_modes(text: str) -> tuple[str, ...]:
+    modes = tuple(m.strip() for m in text.split(",") if m.strip())
+    bad = [m for m in modes if m not in REFERENCE_MODES]
+    if bad or not modes:
+        raise argparse.ArgumentTypeError(f"expected a comma-separated subset of {','.join(REFERENCE_MODES)}")
+    return modes
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -75,6 +84,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--by", metavar="FIELD", help="group the summary by a meta.json field (e.g. kind)")
     parser.add_argument("--limit", type=int, metavar="N", help="first N pairs only (by id)")
     parser.add_argument(
+        "--references",
+        type=_reference_modes,
+        default=REFERENCE_MODES,
+        metavar="MODES",
+        help="on multi-reference sets (source2.*, ...), run each method with: primary (the primary "
+        "reference alone, always), each (every other reference alone, as '<method>[ref k]'), all "
+        "(every reference at once, as '<method>[all]', for methods that take several); "
+        f"comma-separated (default: {','.join(REFERENCE_MODES)})",
+    )
+    parser.add_argument(
         "--lpips-model",
         metavar="FILE",
         help="local TorchScript/ONNX LPIPS model (default: $GEOFILL_LPIPS_MODEL)",
@@ -116,6 +135,7 @@ def run(args: argparse.Namespace) -> int:
                 args.by,
                 area_range=args.area_range,
                 lpips_model=args.lpips_model,
+                references=args.references,
             )
             print(f"summary written to {args.out}/summary.md", file=sys.stderr)
     except GeoFillError as exc:

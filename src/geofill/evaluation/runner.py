@@ -1,7 +1,8 @@
 """The evaluation protocol: cut a brush-stroke hole into each pair's target, run every method on the
 same masked target, score against the original target, and write the tables and pictures.
 
-A method is any ``(target, hole, source, exif) -> MethodOutput`` callable registered under a name;
+A method is any ``(target, hole, sources, exif) -> MethodOutput`` callable registered under a name
+(``sources``: the reference images offered, primary first; single-reference methods use the first);
 the target it receives has its hole pixels zeroed, so no method can see the ground truth, and
 ``exif`` holds the images' EXIF lens data (what the CLI would read from the same files). Its output
 is composited (its pixels inside the hole, the target's outside) before scoring, as in the papers.
@@ -29,7 +30,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from ..config import FillConfig
+from ..config import PRESETS, FillConfig
 from ..errors import ConfigError, InputError, MissingFileError
 from ..io import ExifCamera, read_image
 from .baselines import homography_fill_detailed, opencv_inpaint
@@ -56,41 +57,59 @@ class MethodOutput:
 
 @dataclass(frozen=True)
 class PairExif:
-    """EXIF lens data of a pair's images (None: no file, e.g. synthetic pairs)."""
+    """EXIF lens data of a pair's images, one per reference offered (None: no file, e.g. synthetic)."""
 
     target: ExifCamera | None = None
-    source: ExifCamera | None = None
+    sources: tuple[ExifCamera | None, ...] = (None,)
+
+    @property
+    def source(self) -> ExifCamera | None:
+        """The primary reference's."""
+        return self.sources[0]
 
 
-#: ``method(masked_target, hole, source, exif) -> MethodOutput``; uint8 RGB images, bool hole.
-Method = Callable[[np.ndarray, np.ndarray, np.ndarray, PairExif], MethodOutput]
+#: ``method(masked_target, hole, sources, exif) -> MethodOutput``; uint8 RGB images, bool hole.
+Method = Callable[[np.ndarray, np.ndarray, Sequence[np.ndarray], PairExif], MethodOutput]
 
 #: Methods selectable by name (``--methods``).
 METHODS: dict[str, Method] = {}
+#: Methods that use several references at once (the others are offered one at a time).
+MULTI_REFERENCE: set[str] = set()
+#: ``--references`` choices: which references a multi-reference set's methods are run with.
+REFERENCE_MODES = ("primary", "each", "all")
 #: Names of the project's baselines; the summary counts every method's wins against each.
 BASELINES = ("opencv_inpaint", "homography")
 
 
-def register_method(name: str, method: Method, *, replace: bool = False) -> None:
-    """Make ``method`` selectable as ``name``; re-registering a name needs ``replace=True``."""
+def register_method(
+    name: str, method: Method, *, replace: bool = False, multi_reference: bool = False
+) -> None:
+    """Make ``method`` selectable as ``name``; re-registering a name needs ``replace=True``.
+    ``multi_reference``: it fills from all the references it is given, not just the first."""
     if not name or "," in name:
         raise ValueError(f"invalid method name {name!r}")
     if name in METHODS and not replace:
         raise ValueError(f"method '{name}' is already registered")
     METHODS[name] = method
+    if multi_reference:
+        MULTI_REFERENCE.add(name)
+    else:
+        MULTI_REFERENCE.discard(name)
 
 
-def _opencv_method(target: np.ndarray, hole: np.ndarray, source: np.ndarray, exif: PairExif) -> MethodOutput:
+def _opencv_method(
+    target: np.ndarray, hole: np.ndarray, sources: Sequence[np.ndarray], exif: PairExif
+) -> MethodOutput:
     t0 = time.perf_counter()
     image = opencv_inpaint(target, hole)
     return MethodOutput(image, {"total": time.perf_counter() - t0})
 
 
 def _homography_method(
-    target: np.ndarray, hole: np.ndarray, source: np.ndarray, exif: PairExif
+    target: np.ndarray, hole: np.ndarray, sources: Sequence[np.ndarray], exif: PairExif
 ) -> MethodOutput:
     t0 = time.perf_counter()
-    fill = homography_fill_detailed(target, hole, source)
+    fill = homography_fill_detailed(target, hole, sources[0])
     info = {
         "n_matches": fill.n_matches,
         "n_inliers": fill.n_inliers,
@@ -102,54 +121,32 @@ def _homography_method(
 register_method("opencv_inpaint", _opencv_method)
 register_method("homography", _homography_method)
 
-#: geofill variants selectable by name: config overrides on top of the run's base config
-#: (``geofill eval --config/--set``). The paper's ablations are entries here.
-GEOFILL_VARIANTS: dict[str, dict[str, Any]] = {
-    "geofill": {},
-    # The paper's fixed focal: 750 px at a 1280-px long side, EXIF ignored, nothing estimated (issue 7).
-    "geofill_fixed_focal": {"intrinsics.estimate": "none", "intrinsics.use_exif": False},
-    # Refinement and merge (issue 6): the render pasted as is; flow only; colour only; colour +
-    # residual flow (the default); and each colour model with the flow.
-    "geofill_no_refine": {"refine.colour": "none", "refine.flow": False, "refine.feather_px": 0.0},
-    "geofill_flow": {"refine.colour": "none", "refine.flow": True},
-    "geofill_colour": {"refine.flow": False},
-    "geofill_colour_flow": {"refine.flow": True},
-    "geofill_global": {"refine.colour": "global"},
-    "geofill_gain": {"refine.colour": "gain"},
-    "geofill_poisson": {"refine.colour": "poisson"},
-    # Joint optimisation (issue 5): off, the paper's solver, and the paper's loss / W ablations.
-    "geofill_init": {"optimize.enabled": False},
-    "geofill_paper": {"optimize.solver": "paper"},
-    "geofill_no_photo": {"optimize.use_photo": False},
-    "geofill_no_feat": {"optimize.use_feat": False},
-    "geofill_no_negd": {"optimize.use_negd": False},
-    "geofill_no_hole_w": {"optimize.use_hole_weight": False},
-    "geofill_no_edge_w": {"optimize.use_edge_weight": False},
-    "geofill_uniform_w": {"optimize.use_hole_weight": False, "optimize.use_edge_weight": False},
-    "geofill_refine_focal": {"optimize.refine_focal": True},
-}
-#: Depth backends (issue 4): the weight-free ones by name (``auto`` is ``geofill`` itself).
-GEOFILL_VARIANTS.update({f"geofill_{b}": {"depth.backend": b} for b in ("sparse", "stereo", "fused")})
-#: What ``--methods`` defaults to: the baselines and geofill as configured (variants by name).
+#: What ``--methods`` defaults to: the baselines and geofill as configured (presets by name,
+#: ``geofill_<preset>``: see :data:`geofill.config.PRESETS`).
 DEFAULT_METHODS = (*BASELINES, "geofill")
 
 
 def geofill_method(cfg: FillConfig) -> Method:
-    """The full pipeline with ``cfg`` as an evaluation method."""
+    """The full pipeline with ``cfg`` as an evaluation method (all references it is given)."""
     from ..pipeline import fill
 
-    def run(target: np.ndarray, hole: np.ndarray, source: np.ndarray, exif: PairExif) -> MethodOutput:
-        res = fill(target, hole, source, cfg, target_exif=exif.target, source_exif=exif.source)
+    def run(
+        target: np.ndarray, hole: np.ndarray, sources: Sequence[np.ndarray], exif: PairExif
+    ) -> MethodOutput:
+        res = fill(target, hole, list(sources), cfg, target_exif=exif.target, source_exifs=list(exif.sources))
         r = res.report
+        ref = r.references[0]
+        opt = ref.get("optimize", {})
         info = {
             "status": r.status,
             "fallbacks": r.fallbacks,
-            "pose_status": r.pose_status,
-            "n_pose_inliers": r.n_pose_inliers,
-            "hole_coverage": round(r.hole_coverage, 4),
-            "focal_px": round(float(r.intrinsics_target.get("fx_px", math.nan)), 1),
-            "focal_origin": r.intrinsics_target.get("origin"),
-            "optimize": ": ".join(filter(None, (r.optimization.get(k, "") for k in ("status", "reason")))),
+            "pose_status": ref.get("pose", {}).get("status", ""),
+            "n_pose_inliers": ref.get("pose", {}).get("n_inliers", 0),
+            "hole_coverage": round(1.0 - r.painted_fraction, 4),
+            "supplied_fraction": [round(f, 4) for f in r.supplied_fraction],
+            "focal_px": round(float(ref.get("intrinsics_target", {}).get("fx_px", math.nan)), 1),
+            "focal_origin": ref.get("intrinsics_target", {}).get("origin"),
+            "optimize": ": ".join(filter(None, (opt.get(k, "") for k in ("status", "reason")))),
         }
         return MethodOutput(res.image, dict(r.timings_s), info)
 
@@ -159,8 +156,11 @@ def geofill_method(cfg: FillConfig) -> Method:
 def register_geofill_methods(base: FillConfig | None = None) -> None:
     """(Re-)register every geofill variant on top of ``base`` (default config when None)."""
     base = base or FillConfig()
-    for name, overrides in GEOFILL_VARIANTS.items():
-        register_method(name, geofill_method(base.updated(overrides)), replace=True)
+    register_method("geofill", geofill_method(base), replace=True, multi_reference=True)
+    for name in PRESETS:
+        register_method(
+            f"geofill_{name}", geofill_method(base.preset(name)), replace=True, multi_reference=True
+        )
 
 
 register_geofill_methods()
@@ -182,14 +182,20 @@ def resolve_methods(names: Sequence[str] | None) -> dict[str, Method]:
 
 @dataclass
 class Pair:
-    """One evaluation pair: target (ground truth) and source, HxWx3 uint8 RGB."""
+    """One evaluation pair or multi-reference set: target (ground truth) and its references
+    (primary first), HxWx3 uint8 RGB."""
 
     id: str
     target: np.ndarray
-    source: np.ndarray
+    sources: list[np.ndarray]
     meta: dict[str, Any]
     path: Path | None
     exif: PairExif = PairExif()
+
+    @property
+    def source(self) -> np.ndarray:
+        """The primary reference."""
+        return self.sources[0]
 
 
 _IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
@@ -204,22 +210,30 @@ def _find_image(folder: Path, stem: str) -> Path | None:
     return None
 
 
+#: Reference file stems of a set, in order: ``source`` (the primary), then ``source2`` ...
+_SOURCE_STEMS = ("source", *(f"source{k}" for k in range(2, 10)))
+
+
 def load_pair(folder: str | Path) -> Pair:
-    """A pair folder: ``target.{png,jpg}``, ``source.{png,jpg}``, optional ``meta.json``."""
+    """A pair folder: ``target.{png,jpg}``, ``source.{png,jpg}``, optional ``meta.json``; a
+    multi-reference set adds ``source2``, ``source3``, ... (read in that order)."""
     folder = Path(folder)
     images = {}
-    for stem in ("target", "source"):
+    for stem in ("target", *_SOURCE_STEMS):
         path = _find_image(folder, stem)
         if path is None:
-            raise MissingFileError(f"pair folder {folder} has no {stem}.png/.jpg")
+            if stem in ("target", "source"):
+                raise MissingFileError(f"pair folder {folder} has no {stem}.png/.jpg")
+            break
         images[stem] = read_image(path, min_side=_MIN_SIDE_PX)
     meta_path = folder / "meta.json"
     try:
         meta = json.loads(meta_path.read_text()) if meta_path.is_file() else {}
     except json.JSONDecodeError as exc:
         raise InputError(f"{meta_path} is not valid JSON: {exc}") from exc
-    t, s = images["target"], images["source"]
-    return Pair(folder.name, t.pixels, s.pixels, meta, folder, PairExif(t.exif, s.exif))
+    t, refs = images.pop("target"), list(images.values())
+    exif = PairExif(t.exif, tuple(r.exif for r in refs))
+    return Pair(folder.name, t.pixels, [r.pixels for r in refs], meta, folder, exif)
 
 
 def synthetic_pairs(n: int) -> list[Pair]:
@@ -229,7 +243,9 @@ def synthetic_pairs(n: int) -> list[Pair]:
     pairs = []
     for i in range(n):
         sp = make_pair(seed=i)
-        pairs.append(Pair(f"synthetic_{i:03d}", sp.target, sp.source, {"kind": "synthetic", "seed": i}, None))
+        pairs.append(
+            Pair(f"synthetic_{i:03d}", sp.target, [sp.source], {"kind": "synthetic", "seed": i}, None)
+        )
     return pairs
 
 
@@ -329,11 +345,13 @@ def _error_text(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {exc}".replace("\n", " ")
 
 
-def _run_method(method: Method, pair: Pair, hole: np.ndarray) -> MethodOutput:
+def _run_method(method: Method, pair: Pair, hole: np.ndarray, refs: Sequence[int]) -> MethodOutput:
+    """``method`` on ``pair`` offered the references ``refs`` (0-based indices)."""
     target = pair.target
     masked = target.copy()
     masked[hole] = 0
-    out = method(masked, hole.copy(), pair.source.copy(), pair.exif)
+    exif = PairExif(pair.exif.target, tuple(pair.exif.sources[k] for k in refs))
+    out = method(masked, hole.copy(), [pair.sources[k].copy() for k in refs], exif)
     if not isinstance(out, MethodOutput):
         raise TypeError(f"method returned {type(out).__name__}, not MethodOutput")
     if out.image.dtype != np.uint8 or out.image.shape != target.shape:
@@ -359,17 +377,24 @@ def _evaluate_pair(
     methods: Mapping[str, Method],
     lpips: _Lpips,
     progress: Callable[[EvalRow], None],
+    modes: Sequence[str] = REFERENCE_MODES,
 ) -> list[tuple[EvalRow, np.ndarray | None]]:
-    """Run and score every method on ``pair`` with ``hole``; each row with the composited output
-    (None when the method failed)."""
+    """Run and score every method on ``pair`` with ``hole`` (on a multi-reference set, with the
+    references ``modes`` asks for: see :func:`reference_runs`); each row with the composited
+    output (None when the method failed)."""
     results = []
     ratio = float(hole.mask.mean())
-    for name, method in methods.items():
+    runs = [
+        (f"{name}{label}", method, refs)
+        for name, method in methods.items()
+        for label, refs in reference_runs(len(pair.sources), name in MULTI_REFERENCE, modes)
+    ]
+    for name, method, refs in runs:
         row = EvalRow(pair.id, name, hole.width_720p, hole.width_px, ratio, group=hole.group)
         image = None
         t0 = time.perf_counter()
         try:
-            out = _run_method(method, pair, hole.mask)
+            out = _run_method(method, pair, hole.mask, refs)
             row.time_s = time.perf_counter() - t0
             image = np.where(hole.mask[..., None], out.image, pair.target)
             row.timings, row.info = dict(out.timings), dict(out.info)
@@ -389,6 +414,18 @@ def _evaluate_pair(
         progress(row)
         results.append((row, image))
     return results
+
+
+def reference_runs(n: int, multi_reference: bool, modes: Sequence[str]) -> list[tuple[str, list[int]]]:
+    """(method-name suffix, reference indices) of each run of one method on a set of ``n``
+    references: the primary alone (no suffix) always; with ``each`` every other reference alone
+    (``[ref k]``); with ``all`` (multi-reference methods only) all of them (``[all]``)."""
+    runs: list[tuple[str, list[int]]] = [("", [0])]
+    if n > 1 and "each" in modes:
+        runs += [(f"[ref {k + 1}]", [k]) for k in range(1, n)]
+    if n > 1 and "all" in modes and multi_reference:
+        runs.append(("[all]", list(range(n))))
+    return runs
 
 
 class _Progress:
@@ -441,26 +478,35 @@ def run_eval(
     area_range: tuple[float, float] = DEFAULT_AREA_RANGE,
     lpips_model: str | Path | None = None,
     contact_sheets: bool = True,
+    references: Sequence[str] = REFERENCE_MODES,
 ) -> list[EvalRow]:
     """Evaluate ``methods`` (registry names, a name -> method mapping, or None for all registered)
     on ``pairs`` and write the results to ``out_dir`` (see the module docstring).
 
     Masks: seeded by (pair id, ``seed``); mean brush width ``stroke_width_720p`` px at a 720-px
     short side (default 150), scaled to each image; hole area in ``area_range``. ``by`` names a
-    meta.json field to group the summary by. Returns the rows of results.csv."""
+    meta.json field to group the summary by. On multi-reference sets each method also runs with
+    each reference alone and, if it can, with all of them (``references``; see
+    :func:`reference_runs`). Returns the rows of results.csv."""
     methods = methods if isinstance(methods, Mapping) else resolve_methods(methods)
     width_720p = DEFAULT_STROKE_WIDTH_720P if stroke_width_720p is None else float(stroke_width_720p)
     out = Path(out_dir)
     (out / "masks").mkdir(parents=True, exist_ok=True)
     lpips = _Lpips.load(lpips_model)
-    progress = _Progress(len(pairs) * len(methods))
+    progress = _Progress(
+        sum(
+            len(reference_runs(len(p.sources), m in MULTI_REFERENCE, references))
+            for p in pairs
+            for m in methods
+        )
+    )
     rows: list[EvalRow] = []
     for pair in pairs:
         width_px = _width_px(pair, width_720p)
         mask = pair_mask(pair, seed, width_720p, area_range)
         hole = _Hole(mask, width_720p, width_px, group_value(pair.meta, by) if by else "")
         cv2.imwrite(str(out / "masks" / f"{pair.id}.png"), hole.mask.astype(np.uint8) * 255)
-        results = _evaluate_pair(pair, hole, methods, lpips, progress)
+        results = _evaluate_pair(pair, hole, methods, lpips, progress, references)
         rows.extend(r for r, _ in results)
         if contact_sheets:
             write_contact_sheet(out / f"contact_{pair.id}.jpg", pair, hole.mask, results)
@@ -473,7 +519,8 @@ def run_eval(
         "area_range": area_range,
         "lpips": lpips.description,
     }
-    (out / "summary.md").write_text(summary_markdown(rows, list(methods), settings, by))
+    names = list(dict.fromkeys(r.method for r in rows))
+    (out / "summary.md").write_text(summary_markdown(rows, names, settings, by))
     return rows
 
 
@@ -509,7 +556,7 @@ def sweep(
         for width_720p in widths_720p:
             width_px = _width_px(pair, width_720p)
             hole = _Hole(shape.render(width_px), float(width_720p), width_px)
-            rows.extend(r for r, _ in _evaluate_pair(pair, hole, methods, lpips, progress))
+            rows.extend(r for r, _ in _evaluate_pair(pair, hole, methods, lpips, progress, ("primary",)))
     write_results_csv(out / "sweep_results.csv", rows, None)
     table = sweep_table(rows, list(methods), widths_720p)
     _write_csv(out / "sweep.csv", list(table[0]) if table else [], table)
@@ -682,10 +729,56 @@ def summary_markdown(
                 )
         lines += _md_table([by, "method", "n ok", *(f"{label} (mean)" for _, label, _ in _METRICS)], body)
 
+    lines += multi_reference_markdown(rows, methods)
     failures = [r for r in rows if not r.ok]
     lines += ["", "## Failures", ""]
     lines += [f"- {r.pair} / {r.method}: {r.error}" for r in failures] or ["none"]
     return "\n".join(lines) + "\n"
+
+
+def multi_reference_markdown(rows: Sequence[EvalRow], methods: Sequence[str]) -> list[str]:
+    """Per multi-reference set and method: hole PSNR with the primary reference alone, the best
+    single reference, all references, and the hole fraction the references supplied; wins of
+    all references over the best single one. Empty when no method ran with ``[all]``."""
+    lines: list[str] = []
+    for m in [m for m in methods if f"{m}[all]" in methods]:
+        sets = sorted({r.pair for r in rows if r.method == f"{m}[all]"})
+        body, gains, wins_best, covered = [], [], 0, []
+        for pid in sets:
+            mine = {r.method: r for r in rows if r.pair == pid and r.ok and r.method.startswith(m)}
+            singles = {k: r for k, r in mine.items() if k == m or k.startswith(f"{m}[ref ")}
+            primary, together = mine.get(m), mine.get(f"{m}[all]")
+            if primary is None or together is None or not singles:
+                continue
+            best_name, best = max(singles.items(), key=lambda kv: kv[1].psnr_hole)
+            gains.append((primary.psnr_hole, best.psnr_hole, together.psnr_hole))
+            wins_best += together.psnr_hole >= best.psnr_hole
+            cov = (primary.info.get("hole_coverage"), together.info.get("hole_coverage"))
+            covered.append(cov)
+            body.append(
+                [
+                    pid,
+                    _fmt(primary.psnr_hole, 2),
+                    f"{_fmt(best.psnr_hole, 2)} ({best_name.removeprefix(m) or 'primary'})",
+                    _fmt(together.psnr_hole, 2),
+                    f"{_fmt(cov[0], 3)} -> {_fmt(cov[1], 3)}",
+                ]
+            )
+        if not body:
+            continue
+        mean = np.mean(np.array(gains), axis=0)
+        body.append(["**mean**", *(f"**{v:.2f}**" for v in mean), ""])
+        lines += ["", f"## Several references: {m} (hole PSNR, dB)", ""]
+        lines += _md_table(
+            ["set", "primary alone", "best single reference", "all references", "supplied"], body
+        )
+        lines += [
+            "",
+            f"- all references vs. primary alone: {mean[2] - mean[0]:+.2f} dB mean; all references >= "
+            f"the best single reference on {wins_best}/{len(body) - 1} sets",
+            "- supplied: fraction of the hole filled from references (the rest painted), primary -> all",
+        ]
+    return lines
 
 
 def _stage_table(rows: Sequence[EvalRow], methods: Sequence[str]) -> list[str]:

@@ -1,0 +1,225 @@
+"""The fuse stage: which reference supplies each hole pixel, and how their regions meet.
+
+Every usable reference brings a refined render of the hole (colour-corrected, flow-aligned). Per
+reference and pixel a score in (0, 1] multiplies what can be measured there:
+
+- agreement with the target on the known ring around the hole after colour correction (the
+  refinement's band error): ``0.5 ** (band_error / band_error_scale)``;
+- distance to the render's edge, i.e. to a mesh cut or a disocclusion, where depth is least
+  reliable: ``min(1, distance / edge_distance_px)``;
+- resolution: how much the source's footprint is stretched (the source area one target pixel
+  samples, below 1 where the source is magnified): ``min(1, area) ** 0.5``;
+- the viewing-angle change at the surface (target ray vs. source ray): ``0.5 ** (angle / angle_scale_deg)``.
+
+The best-scoring reference wins each pixel. ``seams="graphcut"`` then lets OpenCV's colour-gradient
+graph cut (:class:`cv2.detail_GraphCutSeamFinder`, Kwatra et al. 2003) move the boundary between
+two references inside the pixels where both score within ``candidate_ratio`` of the best, so seams
+run where the two renders agree; ``seams="feather"`` keeps the per-pixel winner. Either way the
+regions are blended over ``feather_px``. The renders are never mixed where only one covers a pixel.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import cv2
+import numpy as np
+
+from .config import FillConfig, FusionConfig
+from .resolution import config_px
+
+if TYPE_CHECKING:
+    from .pipeline import ReferenceArtifacts
+
+#: Long side (px) at which the graph cut runs; labels are upsampled to the input resolution.
+_SEAM_MAX_SIDE = 640
+
+
+@dataclass(frozen=True)
+class Fusion:
+    """The fused render at target resolution (HxWx3 uint8, zero where ``alpha`` is False), its
+    coverage, and ``labels`` (HxW int16): the reference (1-based) that supplies each covered hole
+    pixel, 0 elsewhere. ``image``/``alpha`` are None when no reference could help."""
+
+    image: np.ndarray | None
+    alpha: np.ndarray | None
+    labels: np.ndarray
+    method: str
+    scores: tuple[float, ...] = ()  # per used reference (in the order given): mean score where it supplies
+
+    def supplied_fractions(self, hole: np.ndarray, n_references: int) -> list[float]:
+        """Fraction of the hole each reference (in the order given) supplies."""
+        n = max(int(hole.sum()), 1)
+        counts = np.bincount(self.labels[hole].ravel(), minlength=n_references + 1)
+        return [float(c) / n for c in counts[1 : n_references + 1]]
+
+    def source_map(self, hole: np.ndarray) -> np.ndarray:
+        """HxW int16: -1 outside the hole, 0 painted by single-image inpainting, k from reference k."""
+        out = self.labels.astype(np.int16, copy=True)
+        out[~hole] = -1
+        return out
+
+    def summary(self) -> str:
+        if self.alpha is None:
+            return "no reference to fuse"
+        ks = np.unique(self.labels[self.labels > 0])
+        return f"{self.method}: {len(ks)} reference(s) supply {int((self.labels > 0).sum())} px"
+
+    def report(self) -> dict[str, Any]:
+        return {"method": self.method, "scores": list(self.scores)}
+
+
+def fuse_references(
+    target: np.ndarray, hole: np.ndarray, refs: Sequence[ReferenceArtifacts], cfg: FillConfig
+) -> Fusion:
+    """Fuse the refined renders of the usable references ``refs`` (see the module docstring)."""
+    empty = np.zeros(hole.shape, np.int16)
+    if not refs:
+        return Fusion(None, None, empty, "none")
+    if len(refs) == 1:
+        r = refs[0].refined
+        labels = np.where(r.alpha & hole, refs[0].index, 0).astype(np.int16)
+        return Fusion(r.image, r.alpha, labels, "single reference")
+    fc = cfg.fusion
+    # A canonical order (by content) so that the order the references were given in cannot change
+    # the result: the graph cut visits pairs of references in list order.
+    refs = sorted(refs, key=lambda r: hashlib.blake2b(r.source.tobytes(), digest_size=16).digest())
+    rows, cols = _window(refs, hole)
+    hole_w = hole[rows, cols]
+    alphas = np.stack([r.refined.alpha[rows, cols] for r in refs])
+    scores = np.stack([reference_score(r, hole.shape, fc)[rows, cols] for r in refs])
+    # Every covered pixel must pick a reference that covers it, however low its score.
+    scores = np.where(alphas, np.maximum(scores, 1e-6), 0.0)
+    best = scores.argmax(axis=0)
+    covered = alphas.any(axis=0)
+    if fc.seams == "graphcut":
+        best = _graphcut_labels(refs, rows, cols, scores, best, covered, fc.candidate_ratio)
+    images = np.stack([r.refined.image[rows, cols] for r in refs]).astype(np.float32)
+    weights = _feathered_weights(best, alphas, covered, config_px(fc.feather_px, hole.shape))
+    fused_w = np.rint(np.einsum("khw,khwc->hwc", weights, images)).clip(0, 255).astype(np.uint8)
+    image = np.zeros_like(target)
+    image[rows, cols] = fused_w
+    alpha = np.zeros(hole.shape, bool)
+    alpha[rows, cols] = covered
+    labels = empty.copy()
+    index = np.array([r.index for r in refs], np.int16)
+    labels[rows, cols] = np.where(covered & hole_w, index[best], 0)
+    supplies = [(best == k) & covered & hole_w for k in range(len(refs))]
+    mean_scores = tuple(
+        float(scores[k][supplies[k]].mean()) if supplies[k].any() else 0.0
+        for k in sorted(range(len(refs)), key=lambda k: index[k])
+    )
+    return Fusion(image, alpha, labels, f"{fc.seams} of {len(refs)} references", mean_scores)
+
+
+def reference_score(ref: ReferenceArtifacts, shape: tuple[int, int], cfg: FusionConfig) -> np.ndarray:
+    """HxW float32 score in [0, 1] of ``ref``'s render at each target pixel (0 where it has none)."""
+    refined = ref.refined
+    alpha = refined.alpha
+    band_error = refined.info.band_error_after
+    if not np.isfinite(band_error):
+        band_error = 2.0 * cfg.band_error_scale  # nothing to check it against: trust it less
+    score = np.zeros(shape, np.float32)
+    rows, cols = refined.render.window()
+    a = alpha[rows, cols]
+    if not a.any():
+        return score
+    edge = cv2.distanceTransform(a.astype(np.uint8), cv2.DIST_L2, 3)
+    edge_w = np.clip(edge / max(config_px(cfg.edge_distance_px, shape), 1.0), 0.05, 1.0)
+    area = _footprint_area(refined.render.map_x[rows, cols], refined.render.map_y[rows, cols], a)
+    angle = _viewing_angle_deg(ref, shape, rows, cols)
+    s = 0.5 ** (band_error / cfg.band_error_scale) * edge_w * np.sqrt(np.clip(area, 0.0, 1.0))
+    s *= 0.5 ** (angle / cfg.angle_scale_deg)
+    score[rows, cols] = np.where(a, s, 0.0)
+    return score
+
+
+def _window(refs: Sequence[ReferenceArtifacts], hole: np.ndarray) -> tuple[slice, slice]:
+    """The smallest window holding every reference's render window."""
+    x0, y0, x1, y1 = hole.shape[1], hole.shape[0], 0, 0
+    for r in refs:
+        roi = r.refined.render.roi or (0, 0, hole.shape[1], hole.shape[0])
+        x0, y0, x1, y1 = min(x0, roi[0]), min(y0, roi[1]), max(x1, roi[2]), max(y1, roi[3])
+    return slice(y0, y1), slice(x0, x1)
+
+
+def _footprint_area(map_x: np.ndarray, map_y: np.ndarray, alpha: np.ndarray) -> np.ndarray:
+    """Source pixels sampled per target pixel (|det| of the map's Jacobian); 1 where undefined."""
+    dxx, dxy = np.gradient(map_x, axis=1), np.gradient(map_x, axis=0)
+    dyx, dyy = np.gradient(map_y, axis=1), np.gradient(map_y, axis=0)
+    area = np.abs(dxx * dyy - dxy * dyx)
+    # Next to an uncovered pixel the map holds -1: the difference there is meaningless.
+    interior = cv2.erode(alpha.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+    return np.where(interior, area, 1.0).astype(np.float32)
+
+
+def _viewing_angle_deg(
+    ref: ReferenceArtifacts, shape: tuple[int, int], rows: slice, cols: slice
+) -> np.ndarray:
+    """Angle (deg) at the rendered surface point between the target's ray and the source's ray."""
+    g = ref.geometry
+    K = g.K_target.resized(shape[1], shape[0])
+    z = ref.refined.render.depth[rows, cols]
+    ys, xs = np.mgrid[rows, cols].astype(np.float32)
+    X = np.stack([(xs - K.cx) / K.fx, (ys - K.cy) / K.fy, np.ones_like(xs)], axis=-1)
+    X *= np.where(np.isfinite(z), z, 0.0)[..., None]
+    to_source = X - g.T[:3, 3].astype(np.float32)  # the source centre is at t in target coordinates
+    cos = np.sum(X * to_source, axis=-1) / np.maximum(
+        np.linalg.norm(X, axis=-1) * np.linalg.norm(to_source, axis=-1), 1e-12
+    )
+    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))).astype(np.float32)
+
+
+def _graphcut_labels(
+    refs: Sequence[ReferenceArtifacts],
+    rows: slice,
+    cols: slice,
+    scores: np.ndarray,
+    best: np.ndarray,
+    covered: np.ndarray,
+    ratio: float,
+) -> np.ndarray:
+    """The per-pixel winners ``best`` with the boundaries between references moved by a
+    colour-gradient graph cut inside the pixels where more than one scores near the best."""
+    top = scores.max(axis=0)
+    candidates = (scores >= ratio * top[None]) & (scores > 0)
+    h, w = best.shape
+    s = min(1.0, _SEAM_MAX_SIDE / max(h, w))
+    size = (max(round(w * s), 1), max(round(h * s), 1))
+    images, masks = [], []
+    for k, r in enumerate(refs):
+        img = r.refined.image[rows, cols].astype(np.float32)
+        images.append(cv2.UMat(cv2.resize(img, size, interpolation=cv2.INTER_AREA)))
+        m = cv2.resize(candidates[k].astype(np.uint8) * 255, size, interpolation=cv2.INTER_NEAREST)
+        masks.append(cv2.UMat(m))
+    finder = cv2.detail_GraphCutSeamFinder("COST_COLOR_GRAD")
+    found = finder.find(images, [(0, 0)] * len(refs), masks)
+    out = best.copy()
+    for k, m in enumerate(found):
+        full = cv2.resize(m.get(), (w, h), interpolation=cv2.INTER_NEAREST) > 0
+        # The cut only re-assigns pixels among references that are good there.
+        out[full & candidates[k] & covered] = k
+    return out
+
+
+def _feathered_weights(
+    best: np.ndarray, alphas: np.ndarray, covered: np.ndarray, feather_px: float
+) -> np.ndarray:
+    """(K, H, W) float32 blending weights: each reference's region blurred over ``feather_px``,
+    restricted to where it has a render, normalised to sum to 1 where any reference covers."""
+    onehot = np.stack([(best == k) & covered for k in range(len(alphas))]).astype(np.float32)
+    if feather_px > 0:
+        sigma = feather_px / 2.0
+        onehot = np.stack([cv2.GaussianBlur(o, (0, 0), sigma) for o in onehot])
+    onehot *= alphas
+    total = onehot.sum(axis=0)
+    # Where blurring left no weight on a covered pixel (a thin region), fall back to its winner.
+    empty = covered & (total <= 1e-6)
+    if empty.any():
+        for k in range(len(alphas)):
+            onehot[k][empty & (best == k)] = 1.0
+        total = onehot.sum(axis=0)
+    return onehot / np.maximum(total, 1e-6)[None]
