@@ -102,10 +102,10 @@ def hole_pixels(case: Case, hole: np.ndarray, size: tuple[int, int]) -> np.ndarr
 
 def confident_fraction(res, cfg: FillConfig) -> float:
     """Share of source pixels the stereo sweep was confident about (re-runs the backend)."""
-    a = res.artifacts
-    v = a.views
+    a = res.references[0]
+    v, K = a.views, a.focal
     ctx = DepthContext(
-        v.source, v.target, v.hole, v.K_source, v.K_target, a.pose, a.points, (0, 0), cfg.depth
+        v.source, v.target, v.hole, K.K_source, K.K_target, a.pose, a.points, (0, 0), cfg.depth
     )
     pred = get_backend("stereo").predict(ctx)
     return float((pred.confidence >= cfg.depth.stereo_min_confidence).mean())
@@ -148,10 +148,10 @@ def main() -> int:
             masked = np.where(hole[..., None], 0, pair.target).astype(np.uint8)  # as `geofill eval` does
             res = fill(masked, hole, pair.source, cfg)
             p = psnr(res.image, pair.target, hole)
-            if res.artifacts.depth is None:
+            if res.references[0].depth is None:
                 print(f"{pair.id:<34s} {name:<8s} failed: {res.report.fallbacks}")
                 continue
-            pred = res.artifacts.depth.depth * baseline
+            pred = res.references[0].depth.depth * baseline
             h, w = pred.shape
             gt = cv2.resize(case.depth, (w, h), interpolation=cv2.INTER_NEAREST)
             gt = np.where(gt > 0, gt, np.nan)

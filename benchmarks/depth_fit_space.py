@@ -67,10 +67,10 @@ def main() -> int:
                     | ({"intrinsics.target": k_t, "intrinsics.source": k_s} if true_k else {})
                 )  # fmt: skip
                 res = fill(pair.target, hole, pair.source, cfg)
-                if res.artifacts.depth is None:
+                if res.references[0].depth is None:
                     print(f"{pair.id:<34s} {name:<14s} {space:<10s} failed: {res.report.fallbacks}")
                     continue
-                absrel, d1 = depth_metrics(res.artifacts.depth.depth * baseline_m, gt)
+                absrel, d1 = depth_metrics(res.references[0].depth.depth * baseline_m, gt)
                 p = psnr(res.image, pair.target, hole)
                 summary.setdefault((name, space), []).append((absrel, d1, p))
                 print(f"{pair.id:<34s} {name:<14s} {space:<10s} {absrel:7.3f} {d1:7.3f} {p:9.2f}")

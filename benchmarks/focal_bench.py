@@ -43,9 +43,10 @@ from geofill.evaluation.metrics import psnr
 from geofill.evaluation.runner import load_pairs, pair_mask
 from geofill.focal import estimate_focal
 from geofill.matching import match_pair
-from geofill.pipeline import fill, prepare
+from geofill.pipeline import fill
 from geofill.pose import estimate_pose
 from geofill.synthetic import make_pair
+from geofill.views import prepare_views
 
 METHODS = ("none", "search", "bougnoux", "auto")
 CFG = FillConfig()
@@ -108,7 +109,7 @@ def real_pairs(pairs) -> None:
         hole = pair_mask(pair, 0)
         target = pair.target.copy()
         target[hole] = 0
-        views = prepare(target, hole, pair.source, CFG, None, None)
+        views = prepare_views(target, hole, pair.source, CFG, None, None)
         m = match_pair(views.target, views.source, views.hole, CFG.matching, views.px_scale)
         gt_t = Intrinsics.from_matrix(np.array(pair.meta["K_target"]), *pair.target.shape[1::-1])
         gt_s = Intrinsics.from_matrix(np.array(pair.meta["K_source"]), *pair.source.shape[1::-1])
@@ -198,15 +199,13 @@ def synthetic(seeds: int) -> None:
 
 def _final_geometry(res):
     """Working-resolution target intrinsics and pose the render used (after the optimisation)."""
-    art = res.artifacts
-    if art.optimization is not None:
-        return art.optimization.K_target, art.optimization.T
-    return art.focal.K_target, art.pose.T
+    g = res.references[0].geometry
+    return g.K_target, g.T
 
 
 def _fill_psnr(pair, hole, cfg) -> tuple[float, object]:
     res = fill(
-        pair.target, hole, pair.source, cfg, target_exif=pair.exif.target, source_exif=pair.exif.source
+        pair.target, hole, pair.source, cfg, target_exif=pair.exif.target, source_exifs=[pair.exif.source]
     )
     return psnr(res.image, pair.target, hole), res
 
@@ -333,7 +332,7 @@ def psnr_curve(pairs, scales: list[float], seeds: list[int]) -> None:
             means.append(float(np.mean(v)))
             print(f"x{k:<7.3f}" + "".join(f" {x:8.2f}" for x in v) + f" {means[-1]:7.2f}", flush=True)
         est = [_fill_psnr(pair, hole, CFG) for hole in holes]
-        chosen = " ".join(f"x{_default_scale(r.artifacts.focal.K_target):.3f}" for _, r in est)
+        chosen = " ".join(f"x{_default_scale(r.references[0].focal.K_target):.3f}" for _, r in est)
         v = [x for x, _ in est]
         print(f"{'estim.':<8s}" + "".join(f" {x:8.2f}" for x in v) + f" {np.mean(v):7.2f}  (scales {chosen})")
         steps = np.abs(np.diff(means))

@@ -44,7 +44,7 @@ from geofill.depth.align import AlignedDepth
 from geofill.evaluation.metrics import psnr
 from geofill.evaluation.runner import load_pairs, pair_mask
 from geofill.optimize import OptimizationResult, optimize_pose_depth
-from geofill.pipeline import FillArtifacts, fill
+from geofill.pipeline import ReferenceArtifacts, fill, prepare_fill, run_reference
 from geofill.synthetic import make_pair
 
 PAIRS = Path(__file__).resolve().parents[2] / "shared" / "data" / "pairs"
@@ -54,18 +54,18 @@ PAIRS = Path(__file__).resolve().parents[2] / "shared" / "data" / "pairs"
 class Start:
     """Everything one optimisation run needs (working resolution)."""
 
-    art: FillArtifacts  # views, matches, pose (inliers)
+    art: ReferenceArtifacts  # stopped after the depth stage
     T: np.ndarray
     depth: AlignedDepth
 
 
 def pipeline_start(target, hole, source, cfg: FillConfig) -> Start | None:
-    """The pipeline's own start: run the fill with the optimisation off and keep its artifacts."""
-    res = fill(target, hole, source, cfg.updated({"optimize.enabled": False}))
-    art = res.artifacts
-    if art.depth is None or art.pose is None or art.pose.status != "ok":
+    """The pipeline's own start: its stages up to the depth, where the optimisation takes over."""
+    ctx = prepare_fill(target, hole, [source], cfg)
+    art = run_reference(ctx, ReferenceArtifacts(1, source), until="depth")
+    if art.dropped or art.pose.status != "ok":
         return None
-    return Start(art, art.pose.T, art.depth)
+    return Start(art, art.pose.T, art.depth.aligned)
 
 
 def cached_start(pair, cfg: FillConfig, folder: str | None) -> Start | None:
@@ -91,10 +91,10 @@ def run(
     oc = replace(cfg.optimize, solver=solver)
     if solver == "paper":
         oc = replace(oc, paper_iterations=[max(1, round(n * paper_scale)) for n in oc.paper_iterations])
-    v, m, inl = start.art.views, start.art.matches, start.art.pose.inliers
+    v, m, inl, K = start.art.views, start.art.matches, start.art.pose.inliers, start.art.focal
     t0, c0 = time.perf_counter(), time.process_time()
     res = optimize_pose_depth(
-        v.target, v.hole, v.source, v.K_target, v.K_source, start.T, start.depth,
+        v.target, v.hole, v.source, K.K_target, K.K_source, start.T, start.depth,
         m.pts_target[inl], m.pts_source[inl], oc,
     )  # fmt: skip
     return res, time.perf_counter() - t0, time.process_time() - c0
@@ -133,7 +133,7 @@ def synthetic(args, cfg: FillConfig) -> None:
         T_gt = sp.T_source_to_target.copy()
         baseline = np.linalg.norm(T_gt[:3, 3])
         T_gt[:3, 3] /= baseline
-        v = start.art.views
+        v = start.art.focal
         K_s = Intrinsics.from_matrix(sp.K_source, w, h).resized(v.K_source.width, v.K_source.height)
         assert np.isclose(K_s.fx, v.K_source.fx), "benchmark assumes the default focal is the true one"
         z = sp.depth_source / baseline
@@ -212,7 +212,7 @@ def focal(args, cfg: FillConfig) -> None:
             sp = make_pair(seed=seed, width=w, height=h, focal_px=f0 * ratio)
             for refine in (False, True):
                 res = fill(sp.target, sp.hole, sp.source, cfg.updated({"optimize.refine_focal": refine}))
-                o = res.artifacts.optimization
+                o = res.references[0].geometry.result
                 if o is None:
                     print(f"{seed:<6d} {ratio:9.2f} {refine!s:>9s} no optimisation ({res.report.status})")
                     continue
@@ -226,24 +226,25 @@ def focal(args, cfg: FillConfig) -> None:
 
 
 def eval_same_depth(argv: list[str]) -> int:
-    """``geofill eval`` with ``pipeline._dense_depth`` memoised per (source, hole, pose) content."""
+    """``geofill eval`` with the depth stage (:func:`geofill.pipeline.source_depth`) memoised per
+    (source, hole, pose, backend) content, so every variant renders the same depth."""
     import hashlib
 
     import geofill.pipeline as pipeline
     from geofill.evaluation.cli import main_eval
 
-    compute, cache = pipeline._dense_depth, {}
+    compute, cache = pipeline.source_depth, {}
 
-    def cached(views, pose, pts, source_size, cfg, backend):
+    def cached(views, focal, pose, points, choice, source_shape, cfg):
         h = hashlib.sha1()
-        for a in (views.source, views.hole, pose.T, pts.xyz_source):
+        for a in (views.source, views.hole, pose.T, points.xyz_source):
             h.update(np.ascontiguousarray(a).tobytes())
-        key = (h.hexdigest(), backend)
+        key = (h.hexdigest(), choice.name)
         if key not in cache:
-            cache[key] = compute(views, pose, pts, source_size, cfg, backend)
+            cache[key] = compute(views, focal, pose, points, choice, source_shape, cfg)
         return cache[key]
 
-    pipeline._dense_depth = cached
+    pipeline.source_depth = cached
     return main_eval(argv)
 
 

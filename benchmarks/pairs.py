@@ -38,19 +38,19 @@ def main(argv: list[str] | None = None) -> int:
     for pair in pairs:
         hole = pair_mask(pair, args.seed)
         res = fill(
-            pair.target, hole, pair.source, cfg, target_exif=pair.exif.target, source_exif=pair.exif.source
+            pair.target, hole, pair.source, cfg, target_exif=pair.exif.target, source_exifs=[pair.exif.source]
         )
-        r = res.report
+        r, ref = res.report, res.references[0]
         T_gt = pair.meta.get("T_source_to_target")
         r_err, t_err = (
-            pose_errors_deg(np.array(r.pose_source_to_target), np.array(T_gt))
-            if T_gt is not None and r.pose_source_to_target
+            pose_errors_deg(ref.pose.T, np.array(T_gt))
+            if T_gt is not None and ref.pose is not None
             else (float("nan"), float("nan"))
         )
         row = {
             "pair": pair.id,
-            "matches": r.n_verified_matches,
-            "inliers": r.n_pose_inliers,
+            "matches": len(ref.matches) if ref.matches is not None else 0,
+            "inliers": ref.pose.n_inliers if ref.pose is not None else 0,
             "R_err": r_err,
             "t_err": t_err,
             "psnr_hole": psnr(res.image, pair.target, hole),

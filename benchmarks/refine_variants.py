@@ -61,9 +61,9 @@ def _render(pair, masked, hole, cfg: FillConfig, cache: Path | None) -> RenderRe
         return RenderResult(z["map_x"], z["map_y"], z["depth"], z["alpha"], tuple(int(v) for v in z["roi"]))
     no_refine = cfg.updated({"refine.colour": "none", "refine.flow": False})
     res = fill(
-        masked, hole, pair.source, no_refine, target_exif=pair.exif.target, source_exif=pair.exif.source
+        masked, hole, pair.source, no_refine, target_exif=pair.exif.target, source_exifs=[pair.exif.source]
     )
-    r = res.artifacts.render if res.report.status == "reference" else None
+    r = res.references[0].render.render if res.report.status == "reference" else None
     if path is not None:
         path.parent.mkdir(parents=True, exist_ok=True)
         if r is None:

@@ -18,9 +18,10 @@ import time
 import numpy as np
 
 from geofill.camera import Intrinsics
+from geofill.config import FillConfig
 from geofill.evaluation.metrics import psnr
-from geofill.pipeline import RENDER_MARGIN_PX, render_roi
-from geofill.render import render_mesh
+from geofill.pipeline import render_margin_px
+from geofill.render import render_mesh, render_roi
 from geofill.synthetic import make_pair
 
 
@@ -46,7 +47,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"synthetic pair {args.width}x{args.height} (seed {args.seed}) cast in {cast_s:.1f} s")
     K_s = Intrinsics.from_matrix(p.K_source, p.source.shape[1], p.source.shape[0])
     K_t = Intrinsics.from_matrix(p.K_target, p.target.shape[1], p.target.shape[0])
-    margin = int(RENDER_MARGIN_PX * max(args.width, args.height) / 1280)
+    margin = int(render_margin_px(FillConfig()) * max(args.width, args.height) / 1280)
     render_mesh(p.depth_source[:8, :8], K_s.resized(8, 8), K_t, p.T_source_to_target, 0.04)  # compile
     print(
         f"{'window':<14s}{'pixels':>10s}{'render_s':>10s}{'sample_s':>10s}{'coverage':>10s}{'psnr_hole':>10s}"

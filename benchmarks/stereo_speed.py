@@ -32,9 +32,10 @@ REAL = ("dev_cotracker_apple_video", "dev_opensfm_berlin_01_02", "dev_mast3r_nle
 
 def context(target: np.ndarray, hole: np.ndarray, source: np.ndarray, cfg: FillConfig) -> DepthContext:
     res = fill(target, hole, source, cfg.updated({"depth.backend": "sparse"}))
-    a, v = res.artifacts, res.artifacts.views
+    a = res.references[0]
+    v, K = a.views, a.focal
     return DepthContext(
-        v.source, v.target, v.hole, v.K_source, v.K_target, a.pose, a.points, (0, 0), cfg.depth
+        v.source, v.target, v.hole, K.K_source, K.K_target, a.pose, a.points, (0, 0), cfg.depth
     )
 
 
