@@ -118,3 +118,28 @@ def test_stop_after_a_stage_and_resume(views, fills):
     assert np.array_equal(done.refined.image, fills["left"].references[0].refined.image)
     with pytest.raises(ValueError, match="unknown stage"):
         run_reference(ctx, ref, until="nonsense")
+
+
+def test_one_focal_from_all_references_of_one_camera():
+    """Three references of one camera whose focal is 1.3x the default guess: the focal estimated
+    from all pairs together is within 5 % of the truth and shared by every reference."""
+    from geofill.camera import default_focal_px
+    from geofill.pipeline import ReferenceArtifacts, prepare_fill, run_reference, shared_focal
+
+    f_true = 1.3 * default_focal_px(320, 240)
+    motions = (("orbit", -0.8, None), ("orbit", 0.8, None), ("sideways", 0.5, 8.0))
+    v = make_views(seed=1, width=320, height=240, motions=motions, focal_px=f_true)
+    hole = np.zeros((240, 320), bool)
+    hole[100:140, 140:180] = True
+    cfg = FillConfig().updated({"intrinsics.shared_camera": "yes"})
+    ctx = prepare_fill(v.target, hole, v.sources, cfg)
+    refs = [run_reference(ctx, ReferenceArtifacts(i + 1, s), until="match") for i, s in enumerate(v.sources)]
+    joint = shared_focal(refs, cfg)
+    focals = {r.focal.K_target.fx for r in joint}
+    assert len(focals) == 1 and all(r.focal.status == "estimated" for r in joint)
+    assert focals.pop() == pytest.approx(f_true, rel=0.05)
+    assert {r.focal.K_source.fx for r in joint} == {joint[0].focal.K_target.fx}
+    # The fill runs the same shared estimate when the user says the camera is shared.
+    res = fill(v.target, hole, v.sources, cfg)
+    assert "shared focal" in res.report.timings_s
+    assert res.report.references[0]["focal"]["method"] == "shared"

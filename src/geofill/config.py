@@ -36,6 +36,11 @@ class IntrinsicsConfig:
     #: ``bougnoux`` is the closed form from F; ``auto`` combines the two. Focal lengths given by a
     #: flag are never estimated; an EXIF focal is a prior the estimate may move within its uncertainty.
     estimate: Literal["none", "search", "bougnoux", "auto"] = "search"
+    #: With several references: estimate one focal for the target and every reference together
+    #: (from all pairs' matches) when they come from the same camera. ``auto``: when every image's
+    #: EXIF names the same body, lens and focal length; ``yes``: always (the user says so);
+    #: ``no``: each pair on its own.
+    shared_camera: Literal["auto", "yes", "no"] = "auto"
     #: Prior 1-sigma of log(focal) for the default focal guess (1.0: a factor of e either way).
     prior_sigma_default: float = 1.0
     #: Prior 1-sigma of log(focal) for an EXIF focal (phones' EXIF is usually right to a few %).

@@ -225,19 +225,9 @@ def search_focal(
 ) -> tuple[FocalCandidate, FocalProfile]:
     """1-D search over a focal scale of the ``free`` images (prior log-sigma ``sigma``)."""
     fit = _EpipolarFit(matches, K_t, K_s, free, threshold_px, cfg.search_max_matches)
-    grid = np.exp(np.linspace(np.log(cfg.search_min_scale), np.log(cfg.search_max_scale), cfg.search_steps))
+    grid = _scale_grid(cfg)
     n = len(grid)
-    cost, n_in, med, poses = np.zeros(n), np.zeros(n, int), np.zeros(n), [None] * n
-    start = int(np.argmin(np.abs(np.log(grid))))
-    first = fit.initial_pose(grid[start], matches.F)
-    # Continuation from the prior outwards: each fit starts from its neighbour's pose.
-    for order in (range(start, n), range(start, -1, -1)):
-        pose = first
-        for i in order:
-            if poses[i] is None:
-                cost[i], res, poses[i] = fit.fit(grid[i], *pose)
-                n_in[i], med[i] = int(np.sum(np.abs(res) < threshold_px)), float(np.median(np.abs(res)))
-            pose = poses[i]
+    cost, n_in, med, poses = _grid_profile(fit, grid, matches.F)
     axes_deg = optical_axes_deg(matches, K_t, K_s)
     profile = FocalProfile(grid, cost, n_in, med, axes_deg)
 
@@ -292,6 +282,88 @@ def search_focal(
             )
         return FocalCandidate("search", False, float(np.exp(log_s)), sd, reason), profile
     return FocalCandidate("search", True, float(np.exp(log_s)), sd), profile
+
+
+def _scale_grid(cfg: IntrinsicsConfig) -> np.ndarray:
+    return np.exp(np.linspace(np.log(cfg.search_min_scale), np.log(cfg.search_max_scale), cfg.search_steps))
+
+
+def _grid_profile(fit: _EpipolarFit, grid: np.ndarray, F: np.ndarray):
+    """Per grid scale: the best fit's robust cost, inliers, median Sampson error (px) and pose."""
+    n = len(grid)
+    cost, n_in, med, poses = np.zeros(n), np.zeros(n, int), np.zeros(n), [None] * n
+    start = int(np.argmin(np.abs(np.log(grid))))
+    first = fit.initial_pose(grid[start], F)
+    # Continuation from the prior outwards: each fit starts from its neighbour's pose.
+    for order in (range(start, n), range(start, -1, -1)):
+        pose = first
+        for i in order:
+            if poses[i] is None:
+                cost[i], res, poses[i] = fit.fit(grid[i], *pose)
+                n_in[i], med[i] = int(np.sum(np.abs(res) < fit.thr)), float(np.median(np.abs(res)))
+            pose = poses[i]
+    return cost, n_in, med, poses
+
+
+def shared_focal_scale(
+    problems: list[tuple[Matches, Intrinsics, Intrinsics, float]], cfg: IntrinsicsConfig
+) -> FocalCandidate:
+    """One focal scale for every image of several pairs taken with the same camera (the target and
+    each reference), from ``problems`` = [(matches, prior K_target, prior K_source, threshold_px)].
+
+    Each pair's search profile (as in :func:`search_focal`) is read as a likelihood of the shared
+    log scale; their sum, with the prior, is minimised on the grid and refined between its
+    neighbours. Pairs with too few matches are left out. The same observability and prior-conflict
+    rules as for one pair decide whether the estimate is used."""
+    usable = [p for p in problems if p[0].F is not None and len(p[0]) >= MIN_MATCHES_FOR_F]
+    if not usable:
+        return FocalCandidate("shared", False, reason="no pair has enough verified matches")
+    sigma = max(prior_sigma(K, cfg) for _, K_t, K_s, _ in usable for K in (K_t, K_s))
+    if sigma <= 0:
+        return FocalCandidate("shared", False, reason="focal lengths given by flags")
+    grid = _scale_grid(cfg)
+    fits, profiles = [], []
+    for m, K_t, K_s, thr in usable:
+        fit = _EpipolarFit(m, K_t, K_s, (True, True), thr, cfg.search_max_matches)
+        cost, _, _, poses = _grid_profile(fit, grid, m.F)
+        c_min = max(float(cost.min()), 1e-12)
+        fits.append((fit, poses, c_min, len(fit.d_t) / (cfg.search_variance_inflation * c_min)))
+        profiles.append(cost)
+    log_grid = np.log(grid)
+
+    def nll(log_s: float, i: int) -> float:
+        s = float(np.exp(log_s))
+        return sum(0.5 * (fit.fit(s, *poses[i])[0] - c_min) * temper for fit, poses, c_min, temper in fits)
+
+    grid_nll = sum(0.5 * (c - f[2]) * f[3] for c, f in zip(profiles, fits, strict=True))
+    i = int(np.argmin(grid_nll))
+    lo, hi = log_grid[max(i - 1, 0)], log_grid[min(i + 1, len(grid) - 1)]
+    best = minimize_scalar(lambda x: nll(x, i), bounds=(lo, hi), method="bounded", options={"xatol": 3e-3})
+    log_d = float(best.x) if best.fun < grid_nll[i] else float(log_grid[i])
+    h = _CURVATURE_STEP
+    curv = (nll(log_d + h, i) + nll(log_d - h, i) - 2.0 * nll(log_d, i)) / h**2
+    sd_data = float(np.hypot(1.0 / np.sqrt(curv) if curv > 0 else np.inf, cfg.model_error))
+    precision = 1.0 / sd_data**2 + 1.0 / sigma**2
+    log_s, sd = float(log_d / sd_data**2 / precision), float(1.0 / np.sqrt(precision))
+    conflict = abs(log_d) / np.hypot(sd_data, sigma)
+    if conflict > cfg.max_prior_conflict:
+        reason = f"the pairs' best shared focal contradicts the prior by {conflict:.1f} sigma: kept the prior"
+        return FocalCandidate("shared", False, float(np.exp(log_d)), sd_data, reason)
+    if sd > min(cfg.max_uncertainty, cfg.max_uncertainty_ratio * sigma):
+        reason = (
+            f"shared focal unobservable from {len(usable)} pairs: +-{100 * sd:.0f}% "
+            f"(prior +-{100 * sigma:.0f}%)"
+        )
+        return FocalCandidate("shared", False, float(np.exp(log_s)), sd, reason)
+    return FocalCandidate("shared", True, float(np.exp(log_s)), sd)
+
+
+def shared_estimate(candidate: FocalCandidate, K_t: Intrinsics, K_s: Intrinsics) -> FocalEstimate:
+    """The focal stage's result for one pair of a shared-camera fill."""
+    if not candidate.ok:
+        return FocalEstimate(K_t, K_s, "prior", "shared", candidate.reason, K_t, K_s, [candidate])
+    K_t_new, K_s_new = (_scaled(K, candidate.scale, candidate.rel_uncertainty) for K in (K_t, K_s))
+    return FocalEstimate(K_t_new, K_s_new, "estimated", "shared", "", K_t, K_s, [candidate])
 
 
 def bougnoux_focals(F: np.ndarray, c_t: tuple[float, float], c_s: tuple[float, float]) -> tuple[float, float]:

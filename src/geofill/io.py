@@ -98,6 +98,13 @@ class ExifCamera:
     focal_plane_x_res: float | None = None  # FocalPlaneXResolution, pixels per mm
     focal_plane_y_res: float | None = None  # FocalPlaneYResolution, pixels per mm
     original_size: tuple[int, int] | None = None  # (w, h) the focal-plane resolution refers to
+    body: str | None = None  # Make, Model and LensModel, as one string
+
+    @property
+    def camera_id(self) -> tuple[str, float | None] | None:
+        """Body and lens at the focal length used: equal for photos from the same camera setting
+        (None when EXIF does not name the body)."""
+        return (self.body, self.focal_mm) if self.body else None
 
 
 @dataclass
@@ -439,12 +446,17 @@ def _exif_camera(exif: Image.Exif, orientation: int) -> ExifCamera:
         for res in (tag(ExifTags.Base.FocalPlaneXResolution), tag(ExifTags.Base.FocalPlaneYResolution))
     )
     width, height = tag(ExifTags.Base.ExifImageWidth), tag(ExifTags.Base.ExifImageHeight)
+    names = [
+        sub.get(k, exif.get(k)) for k in (ExifTags.Base.Make, ExifTags.Base.Model, ExifTags.Base.LensModel)
+    ]
+    body = " ".join(str(n).strip("\x00 ") for n in names if isinstance(n, str) and n.strip("\x00 "))
     camera = ExifCamera(
         focal_35mm=tag(ExifTags.Base.FocalLengthIn35mmFilm),
         focal_mm=tag(ExifTags.Base.FocalLength),
         focal_plane_x_res=x_res,
         focal_plane_y_res=y_res,
         original_size=(int(width), int(height)) if width and height else None,
+        body=body or None,
     )
     if orientation in _TRANSPOSING_ORIENTATIONS:
         size = camera.original_size

@@ -31,7 +31,7 @@ from .config import FillConfig
 from .depth import BackendChoice, DepthContext, choose_backend
 from .depth.stage import SourceDepth, estimate_depth, rotation_only_depth
 from .errors import ArrayFormatError, ReferenceUnusable
-from .focal import FocalEstimate, estimate_focal
+from .focal import FocalEstimate, estimate_focal, shared_estimate, shared_focal_scale
 from .fusion import Fusion, fuse_references
 from .geometry import Geometry, optimize_geometry
 from .inpaint import Inpainter, get_inpainter
@@ -322,6 +322,11 @@ def fill(
         ReferenceArtifacts(i + 1, as_rgb_uint8(s), e)
         for i, (s, e) in enumerate(zip(images, exifs, strict=True))
     ]
+    if shares_camera(ctx, refs):
+        refs = _run_references(ctx, refs, prog, until="match")
+        with prog.stage("shared focal") as notes:
+            refs = shared_focal(refs, cfg)
+            notes.append(next((r.focal.summary() for r in refs if r.focal is not None), "no usable pair"))
     refs = _run_references(ctx, refs, prog)
     with prog.stage("fuse") as notes:
         fusion = fuse_references(ctx.target, ctx.hole, [r for r in refs if r.usable], cfg)
@@ -335,15 +340,46 @@ def fill(
     return FillResult(image, report, refs, fusion, fusion.source_map(ctx.hole))
 
 
+def shares_camera(ctx: FillContext, refs: list[ReferenceArtifacts]) -> bool:
+    """Whether one focal is estimated for all images (``intrinsics.shared_camera``): several
+    references, no focal given by a flag, and the user says so or every EXIF names the same camera."""
+    ic = ctx.cfg.intrinsics
+    if len(refs) < 2 or ic.estimate == "none" or ic.shared_camera == "no":
+        return False
+    if ic.focal_px is not None or ic.target is not None or ic.source is not None:
+        return False
+    if ic.shared_camera == "yes":
+        return True
+    ids = {getattr(e, "camera_id", None) for e in (ctx.target_exif, *(r.exif for r in refs))}
+    return len(ids) == 1 and None not in ids
+
+
+def shared_focal(refs: list[ReferenceArtifacts], cfg: FillConfig) -> list[ReferenceArtifacts]:
+    """Every matched reference given the focal estimated from all pairs together (their focal
+    stage then does not run)."""
+    live = [r.index for r in refs if r.matches is not None and not r.dropped]
+    problems = [
+        (r.matches, r.views.K_target, r.views.K_source, r.views.ransac_px) for r in refs if r.index in live
+    ]
+    candidate = shared_focal_scale(problems, cfg.intrinsics)
+    return [
+        replace(r, focal=shared_estimate(candidate, r.views.K_target, r.views.K_source))
+        if r.index in live
+        else r
+        for r in refs
+    ]
+
+
 def _run_references(
-    ctx: FillContext, refs: list[ReferenceArtifacts], prog: Progress
+    ctx: FillContext, refs: list[ReferenceArtifacts], prog: Progress, until: str | None = None
 ) -> list[ReferenceArtifacts]:
-    """Every reference through its stages, ``fusion.parallel`` at a time. Each gets its own
-    progress (prefixed with its number when there are several) so timings never mix."""
+    """Every reference through its stages (up to ``until``), ``fusion.parallel`` at a time. Each
+    gets its own progress (prefixed with its number when there are several) so timings never mix."""
     many = len(refs) > 1
 
     def one(ref: ReferenceArtifacts) -> ReferenceArtifacts:
-        return run_reference(ctx, ref, prog.child(f"ref {ref.index}") if many else prog.child(""))
+        sub = prog.child(f"ref {ref.index}") if many else prog.child("")
+        return run_reference(ctx, ref, sub, until=until)
 
     workers = max(1, min(ctx.cfg.fusion.parallel, len(refs)))
     if workers == 1:

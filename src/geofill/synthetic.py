@@ -674,13 +674,14 @@ def make_views(
     height: int = 240,
     motions: Sequence[tuple[str, float, float | None]] = (("sideways", -0.6, -12.0), ("sideways", 0.6, 12.0)),
     supersample: int = 2,
+    focal_px: float | None = None,
 ) -> SyntheticViews:
     """Render the target of :func:`make_pair` ``(seed)`` and one reference per ``(motion, baseline,
     rotation_deg)`` of ``motions`` (as :func:`relative_pose`). The default: one reference stepped
     left and turned left, one stepped right and turned right, so each misses what the other sees
-    at the opposite border."""
+    at the opposite border. One camera for all (``focal_px``, default :func:`default_focal_px`)."""
     scene = make_scene(seed)
-    K = Intrinsics.from_focal(default_focal_px(width, height), width, height).K
+    K = Intrinsics.from_focal(focal_px or default_focal_px(width, height), width, height).K
     pose_t = scene.target_pose()
     target, depth_t = scene.render(K, pose_t, width, height, supersample)
     centre = float(np.linalg.norm(scene.center - pose_t[:3, 3]))
