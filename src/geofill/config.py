@@ -115,15 +115,20 @@ class MatchingConfig:
     #: ``asift`` rung: tilts sqrt(2)^k for k < ``asift_max_tilt`` (4: up to 2.8, about 70 deg of
     #: obliquity), detected on the working image downsized to a long side of at most
     #: ``asift_max_side`` px (ASIFT's cost grows with the area times the number of views),
-    #: ``asift_features_per_view`` SIFT keypoints per simulated view, ratio threshold.
+    #: ``asift_features_per_view`` SIFT keypoints per simulated view, the ``asift_max_features``
+    #: strongest of all views kept per image (the matching cost grows with their product), ratio
+    #: threshold.
     asift_max_tilt: int = 4
     asift_max_side: int = 800
     asift_features_per_view: int = 1000
+    asift_max_features: int = 8000
     asift_ratio: float = 0.85
     #: ``guided`` rung: half-width (px at the working resolution) of the epipolar band a match
-    #: must fall in, and the ratio threshold between the two best candidates inside it.
+    #: must fall in, and the ratio threshold between the two best candidates inside it. Not looser
+    #: than plain SIFT's: a wrong match on its epipolar line passes F verification by construction
+    #: (0.9 gave 142 verified matches on a rendered 33-degree orbit, 77 % right; 0.8: 93, 96 %).
     guided_band_px: float = 3.0
-    guided_ratio: float = 0.9
+    guided_ratio: float = 0.8
 
     def __post_init__(self) -> None:
         # OpenCV and numpy take these unchecked (a huge keypoint count or iteration budget fails
@@ -132,6 +137,7 @@ class MatchingConfig:
             "max_features": (0, 1_000_000),
             "loose_max_features": (0, 1_000_000),
             "asift_features_per_view": (1, 100_000),
+            "asift_max_features": (1, 100_000),
             "ransac_max_iters": (1, 1_000_000),
             "asift_max_tilt": (1, 8),
             "asift_max_side": (64, 8192),

@@ -72,10 +72,12 @@ def detect_asift(
     max_tilt: int,
     max_side: int,
     features_per_view: int,
+    max_features: int,
     deadline: float,
 ) -> tuple[Features, Features, int]:
     """ASIFT features of two images (OpenCV's ``AffineFeature`` around SIFT) at a long side of
-    at most ``max_side``, positions in the input images' pixels.
+    at most ``max_side``, positions in the input images' pixels; the ``max_features`` strongest
+    (by detector response) of each image are kept.
 
     The simulated views are run one at a time, alternating between the images, so that when
     ``deadline`` (``time.perf_counter()``) passes both images stop after the same views: what was
@@ -103,7 +105,9 @@ def detect_asift(
         used += 1
     out = []
     for kps, descs, f, _, _ in per_image:
-        feats = _root_sift(kps, np.concatenate(descs) if descs else None)
+        strongest = np.argsort([-kp.response for kp in kps], kind="stable")[:max_features]
+        desc = np.concatenate(descs)[strongest] if descs else None
+        feats = _root_sift([kps[i] for i in strongest], desc)
         out.append(Features((feats.pts + 0.5) / f - 0.5, feats.desc))
     return out[0], out[1], used
 
@@ -140,5 +144,9 @@ def epipolar_band(pts_t: np.ndarray, pts_s: np.ndarray, F: np.ndarray, band_px: 
     source point j (``x_t^T F x_s = 0``)."""
     lines = np.c_[pts_s, np.ones(len(pts_s))] @ F.T  # (Ns, 3) lines in the target
     lines /= np.maximum(np.hypot(lines[:, 0], lines[:, 1]), 1e-12)[:, None]
-    dist = torch.from_numpy(np.c_[pts_t, np.ones(len(pts_t))]) @ torch.from_numpy(lines).T
+    # float32 like the similarity matrix it masks (positions < 1e4 px: 1e-3 px resolution).
+    dist = (
+        torch.from_numpy(np.c_[pts_t, np.ones(len(pts_t))].astype(np.float32))
+        @ torch.from_numpy(lines.astype(np.float32)).T
+    )
     return dist.abs() < band_px

@@ -215,7 +215,7 @@ class _Ladder:
         elif rung == "asift":
             ft, fs, _ = detect_asift(
                 self.gray, self.masks, cfg.asift_max_tilt, cfg.asift_max_side,
-                cfg.asift_features_per_view, self.deadline,
+                cfg.asift_features_per_view, cfg.asift_max_features, self.deadline,
             )  # fmt: skip
             self.features["asift"] = (ft, fs)
             pairs, thr = mutual_ratio_matches(ft.desc, fs.desc, cfg.asift_ratio, True), strict
