@@ -1,0 +1,152 @@
+"""Local features and descriptor matching for the matching ladder: SIFT and affine-simulated SIFT
+(ASIFT) keypoints with RootSIFT descriptors, exact ratio-test matching, and matching guided by a
+first estimate of the epipolar geometry."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+import torch
+
+
+@dataclass(frozen=True)
+class Features:
+    """Keypoint positions (N, 2) float64 in pixels of the image they were detected on, and their
+    RootSIFT descriptors (N, 128) float32, unit L2 norm."""
+
+    pts: np.ndarray
+    desc: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.pts.shape[0])
+
+
+def to_gray_u8(image: np.ndarray) -> np.ndarray:
+    """HxWx3 RGB (uint8 or float in [0, 1]) -> HxW uint8 grey."""
+    if image.dtype != np.uint8:
+        image = np.clip(np.rint(image * 255.0), 0, 255).astype(np.uint8)
+    return cv2.cvtColor(image, cv2.COLOR_RGB2GRAY) if image.ndim == 3 else image
+
+
+def keypoint_mask(hole: np.ndarray, margin_px: float) -> np.ndarray:
+    """uint8 detection mask (255 = allowed) excluding the hole dilated by ``margin_px``."""
+    allowed = np.where(hole, 0, 255).astype(np.uint8)
+    r = int(np.ceil(margin_px))
+    if r > 0:
+        allowed = cv2.erode(allowed, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1)))
+    return allowed
+
+
+def _root_sift(kps, desc) -> Features:
+    if desc is None or len(kps) == 0:
+        return Features(np.zeros((0, 2)), np.zeros((0, 128), np.float32))
+    # RootSIFT (Arandjelovic & Zisserman 2012): L1-normalise, square-root; Euclidean distance on it
+    # is the Hellinger kernel, which matches better than raw SIFT at no cost.
+    desc = np.sqrt(desc / (np.abs(desc).sum(axis=1, keepdims=True) + 1e-7)).astype(np.float32)
+    return Features(np.array([kp.pt for kp in kps], dtype=np.float64), desc)
+
+
+def detect_sift(gray: np.ndarray, max_features: int, mask: np.ndarray | None = None) -> Features:
+    """SIFT keypoints (the ``max_features`` strongest; 0 = all) with RootSIFT descriptors."""
+    kps, desc = cv2.SIFT_create(nfeatures=max_features).detectAndCompute(gray, mask)
+    return _root_sift(kps, desc)
+
+
+def asift_views(max_tilt: int) -> list[tuple[float, float]]:
+    """(tilt, roll in degrees) of ASIFT's simulated views, lowest tilt first: tilts sqrt(2)^k for
+    k < ``max_tilt``, rolls every 72/t degrees over half a turn (Morel & Yu 2009; OpenCV's
+    ``AffineFeature`` defaults)."""
+    views = [(1.0, 0.0)]
+    for k in range(1, max_tilt):
+        t = float(np.sqrt(2.0) ** k)
+        views += [(t, float(r)) for r in np.arange(0.0, 180.0, 72.0 / t)]
+    return views
+
+
+def detect_asift(
+    grays: tuple[np.ndarray, np.ndarray],
+    masks: tuple[np.ndarray | None, np.ndarray | None],
+    max_tilt: int,
+    max_side: int,
+    features_per_view: int,
+    max_features: int,
+    deadline: float,
+) -> tuple[Features, Features, int]:
+    """ASIFT features of two images (OpenCV's ``AffineFeature`` around SIFT) at a long side of
+    at most ``max_side``, positions in the input images' pixels; the ``max_features`` strongest
+    (by detector response) of each image are kept.
+
+    The simulated views are run one at a time, alternating between the images, so that when
+    ``deadline`` (``time.perf_counter()``) passes both images stop after the same views: what was
+    found is kept. Returns both feature sets and the number of views used."""
+    views = asift_views(max_tilt)
+    per_image: list[tuple[list, list, float]] = []
+    for gray, mask in zip(grays, masks, strict=True):
+        f = min(1.0, max_side / max(gray.shape))
+        if f < 1.0:
+            gray = cv2.resize(gray, None, fx=f, fy=f, interpolation=cv2.INTER_AREA)
+            if mask is not None:
+                mask = cv2.resize(mask, gray.shape[::-1], interpolation=cv2.INTER_NEAREST)
+        per_image.append(([], [], f, gray, mask))
+    detector = cv2.AffineFeature_create(cv2.SIFT_create(nfeatures=features_per_view))
+    used = 0
+    for tilt, roll in views:
+        if used and time.perf_counter() > deadline:
+            break
+        detector.setViewParams([tilt], [roll])
+        for kps, descs, _, gray, mask in per_image:
+            k, d = detector.detectAndCompute(gray, mask)
+            if d is not None and len(k):
+                kps.extend(k)
+                descs.append(d)
+        used += 1
+    out = []
+    for kps, descs, f, _, _ in per_image:
+        strongest = np.argsort([-kp.response for kp in kps], kind="stable")[:max_features]
+        desc = np.concatenate(descs)[strongest] if descs else None
+        feats = _root_sift([kps[i] for i in strongest], desc)
+        out.append(Features((feats.pts + 0.5) / f - 0.5, feats.desc))
+    return out[0], out[1], used
+
+
+def mutual_ratio_matches(
+    desc_a: np.ndarray, desc_b: np.ndarray, ratio: float, mutual: bool, allowed: torch.Tensor | None = None
+) -> np.ndarray:
+    """(M, 2) index pairs (i in a, j in b) passing Lowe's ratio test (a->b) and, if asked, the
+    mutual nearest-neighbour check. Descriptors must be L2-normalised (RootSIFT is). ``allowed``
+    (bool, len(a) x len(b)) restricts the candidates of each descriptor (guided matching): the
+    ratio test is then between the two best allowed candidates.
+
+    Exact nearest neighbours from one matrix product in torch: 2.4x faster than OpenCV's
+    brute-force matcher for 8000x8000 descriptors on 2 cores (0.30 s vs 0.71 s), and exact unlike FLANN.
+    """
+    if len(desc_a) < 2 or len(desc_b) < 2:
+        return np.zeros((0, 2), dtype=np.int64)
+    sim = torch.from_numpy(desc_a) @ torch.from_numpy(desc_b).T
+    if allowed is not None:
+        # Similarities lie in [0, 1] (non-negative unit descriptors): -1 is "no candidate".
+        sim = sim.masked_fill(~allowed, -1.0)
+    best, idx = sim.topk(2, dim=1)
+    # For unit vectors ||a - b||^2 = 2 - 2 a.b: the ratio test on distances, squared.
+    d2 = (2.0 - 2.0 * best).clamp_min(0.0)
+    keep = (d2[:, 0] < (ratio**2) * d2[:, 1]) & (best[:, 0] >= 0.0)
+    if mutual:
+        keep &= sim.argmax(dim=0)[idx[:, 0]] == torch.arange(len(desc_a))
+    i = torch.nonzero(keep).ravel()
+    return torch.stack([i, idx[i, 0]], dim=1).numpy().astype(np.int64)
+
+
+def epipolar_band(pts_t: np.ndarray, pts_s: np.ndarray, F: np.ndarray, band_px: float) -> torch.Tensor:
+    """(len(t), len(s)) bool: target point i lies within ``band_px`` of the epipolar line of
+    source point j (``x_t^T F x_s = 0``)."""
+    lines = np.c_[pts_s, np.ones(len(pts_s))] @ F.T  # (Ns, 3) lines in the target
+    lines /= np.maximum(np.hypot(lines[:, 0], lines[:, 1]), 1e-12)[:, None]
+    # float32 like the similarity matrix it masks (positions < 1e4 px: 1e-3 px resolution).
+    dist = (
+        torch.from_numpy(np.c_[pts_t, np.ones(len(pts_t))].astype(np.float32))
+        @ torch.from_numpy(lines.astype(np.float32)).T
+    )
+    return dist.abs() < band_px

@@ -1,0 +1,301 @@
+"""The matching ladder: plain SIFT first; while the verified geometry is weak (too few inliers, or
+too little of the hole's surroundings near an inlier), climb to costlier matching, and stop at the
+first rung whose geometry verifies or when the time budget is spent.
+
+Rungs (``MatchingConfig.max_rung`` caps the climb):
+
+``sift``: SIFT, RootSIFT descriptors, ratio test + mutual nearest neighbours, fundamental matrix
+by a robust estimator (OpenCV USAC MAGSAC++ by default). What every easy pair uses, unchanged.
+
+``loose``: more SIFT keypoints and a looser ratio test (more true matches on wide baselines, and
+more outliers), verified more strictly: a tighter inlier threshold.
+
+``asift``: affine-simulated SIFT (ASIFT, OpenCV ``AffineFeature``): each image is re-detected under
+simulated camera tilts, which recovers the matches that a strong viewpoint change destroys for
+SIFT; views run until the budget is spent.
+
+``guided``: with the best fundamental matrix found so far, every keypoint (the richest set
+computed) is matched again among the candidates near its epipolar line only, where a looser
+ratio test is safe because the wrong candidates elsewhere are gone.
+
+The F-verified set is independent of the intrinsics, which is what the pose stage (with K) and the
+focal-length estimation (without K) both start from."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import cv2
+import numpy as np
+
+from ..config import MatchingConfig
+from .features import (
+    Features,
+    detect_asift,
+    detect_sift,
+    epipolar_band,
+    keypoint_mask,
+    mutual_ratio_matches,
+    to_gray_u8,
+)
+
+ROBUST_METHODS = {"magsac": cv2.USAC_MAGSAC, "ransac": cv2.RANSAC, "lmeds": cv2.LMEDS}
+#: Fewer tentative matches than this cannot support a fundamental matrix fit (8-point + margin).
+MIN_MATCHES_FOR_F = 12
+#: The rungs in climbing order.
+RUNGS = ("sift", "loose", "asift", "guided")
+
+
+@dataclass(frozen=True)
+class RungReport:
+    """What one rung of the ladder found: its tentative and F-verified matches, the fraction of
+    the hole within ``hole_support_radius_px`` of a verified match, its time, and ``weak``: why
+    its geometry did not verify (empty when it did)."""
+
+    rung: str
+    n_tentative: int
+    n_verified: int
+    hole_support: float
+    time_s: float
+    weak: str
+
+    @property
+    def verified(self) -> bool:
+        return not self.weak
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "rung": self.rung,
+            "tentative": self.n_tentative,
+            "verified": self.n_verified,
+            "hole_support": round(self.hole_support, 4),
+            "time_s": round(self.time_s, 3),
+            "weak": self.weak,
+        }
+
+
+@dataclass(frozen=True)
+class Matches:
+    """Verified correspondences between target and source, in working-resolution pixels.
+
+    ``pts_target[i]`` and ``pts_source[i]`` are the same scene point. ``F`` maps source points to
+    target epipolar lines (``x_t^T F x_s = 0``); None when it could not be estimated. ``rung`` is
+    the ladder rung the matches come from, ``rungs`` every rung tried in order, and ``verified``
+    whether that rung's geometry verified (False: the best of the rungs tried, weak).
+    """
+
+    pts_target: np.ndarray  # (N, 2) float64
+    pts_source: np.ndarray  # (N, 2) float64
+    F: np.ndarray | None
+    n_keypoints_target: int
+    n_keypoints_source: int
+    n_tentative: int  # after ratio + mutual tests and de-duplication, before geometric verification
+    rung: str = "sift"
+    rungs: tuple[RungReport, ...] = ()
+    verified: bool = True
+    budget_spent: bool = False  # the time budget stopped the ladder
+    time_s: float = 0.0
+    notes: tuple[str, ...] = field(default=())  # why the ladder climbed or stopped
+
+    def __len__(self) -> int:
+        return int(self.pts_target.shape[0])
+
+    @property
+    def too_few(self) -> bool:
+        """No fundamental matrix could be verified: the pair cannot give a geometry."""
+        return self.F is None or len(self) < MIN_MATCHES_FOR_F
+
+    def summary(self) -> str:
+        """One line for the progress output and the report."""
+        tried = ", ".join(f"{r.rung} {r.n_verified}/{r.n_tentative} {r.time_s:.1f}s" for r in self.rungs)
+        state = "verified" if self.verified else "weak"
+        line = f"{len(self)} verified of {self.n_tentative} tentative matches from rung {self.rung} ({state})"
+        if len(self.rungs) > 1:
+            line += f"; rungs: {tried}"
+        if self.budget_spent:
+            line += "; time budget spent"
+        return line
+
+    def report(self) -> dict[str, Any]:
+        """Report fields of the matching stage."""
+        return {
+            "n_keypoints_target": self.n_keypoints_target,
+            "n_keypoints_source": self.n_keypoints_source,
+            "rung": self.rung,
+            "verified": self.verified,
+            "n_verified": len(self),
+            "n_tentative": self.n_tentative,
+            "budget_spent": self.budget_spent,
+            "time_s": round(self.time_s, 3),
+            "rungs": [r.to_json() for r in self.rungs],
+            "notes": list(self.notes),
+        }
+
+
+def verify_fundamental(
+    pts_t: np.ndarray, pts_s: np.ndarray, threshold_px: float, cfg: MatchingConfig
+) -> tuple[np.ndarray | None, np.ndarray]:
+    """Robust F (``x_t^T F x_s = 0``) and its inlier mask; (None, all False) when the matches
+    cannot support one (too few, or degenerate: OpenCV raises on some collinear or repeated sets)."""
+    none = np.zeros(len(pts_t), dtype=bool)
+    if len(pts_t) < MIN_MATCHES_FOR_F:
+        return None, none
+    try:
+        F, inl = cv2.findFundamentalMat(
+            pts_s,
+            pts_t,
+            ROBUST_METHODS[cfg.robust_method],
+            threshold_px,
+            cfg.ransac_confidence,
+            cfg.ransac_max_iters,
+        )
+    except cv2.error:
+        return None, none
+    if F is None or F.shape != (3, 3) or inl is None:
+        return None, none
+    return F, inl.ravel().astype(bool)
+
+
+def hole_support(hole: np.ndarray, pts: np.ndarray, radius_px: float) -> float:
+    """Fraction of the hole's pixels within ``radius_px`` of one of ``pts`` (x, y): how much of the
+    hole's surroundings the verified geometry is measured on."""
+    if not hole.any():
+        return 1.0
+    if len(pts) == 0:
+        return 0.0
+    free = np.full(hole.shape, 255, np.uint8)
+    xy = np.clip(np.rint(pts).astype(np.int64), 0, [hole.shape[1] - 1, hole.shape[0] - 1])
+    free[xy[:, 1], xy[:, 0]] = 0
+    dist = cv2.distanceTransform(free, cv2.DIST_L2, 3)
+    return float(np.mean(dist[hole] <= radius_px))
+
+
+@dataclass
+class _Candidate:
+    """A rung's matches before they become :class:`Matches`."""
+
+    report: RungReport
+    pts_t: np.ndarray
+    pts_s: np.ndarray
+    F: np.ndarray | None
+    n_kp: tuple[int, int]
+
+
+class _Ladder:
+    """State shared by the rungs of one :func:`match_pair` call: the images, the features already
+    computed (later rungs reuse them), the best geometry so far and the deadline."""
+
+    def __init__(self, target, source, hole, cfg: MatchingConfig, scale_px: float, start: float):
+        self.cfg, self.hole, self.scale = cfg, hole, scale_px
+        self.gray = (to_gray_u8(target), to_gray_u8(source))
+        self.masks = (keypoint_mask(hole, cfg.hole_margin_px * scale_px), None)
+        self.threshold = cfg.ransac_px(scale_px)
+        self.deadline = start + cfg.time_budget_s
+        self.features: dict[str, tuple[Features, Features]] = {}
+        self.best: _Candidate | None = None
+
+    def sift(self, n: int) -> tuple[Features, Features]:
+        key = f"sift{n}"
+        if key not in self.features:
+            t, s = (detect_sift(g, n, m) for g, m in zip(self.gray, self.masks, strict=True))
+            self.features[key] = (t, s)
+        return self.features[key]
+
+    def run(self, rung: str) -> _Candidate | None:
+        """The rung's verified matches; None when it has nothing to work on (guided matching
+        without a first geometry)."""
+        t0 = time.perf_counter()
+        cfg, strict = self.cfg, self.threshold * self.cfg.strict_threshold_scale
+        if rung == "sift":
+            ft, fs = self.sift(cfg.max_features)
+            pairs, thr = mutual_ratio_matches(ft.desc, fs.desc, cfg.ratio, cfg.mutual), self.threshold
+        elif rung == "loose":
+            ft, fs = self.sift(cfg.loose_max_features)
+            pairs, thr = mutual_ratio_matches(ft.desc, fs.desc, cfg.loose_ratio, False), strict
+        elif rung == "asift":
+            ft, fs, _ = detect_asift(
+                self.gray, self.masks, cfg.asift_max_tilt, cfg.asift_max_side,
+                cfg.asift_features_per_view, cfg.asift_max_features, self.deadline,
+            )  # fmt: skip
+            self.features["asift"] = (ft, fs)
+            pairs, thr = mutual_ratio_matches(ft.desc, fs.desc, cfg.asift_ratio, True), strict
+        else:  # guided
+            if self.best is None or self.best.F is None:
+                return None
+            # The richest keypoint sets computed so far (ASIFT's when that rung ran).
+            ft, fs = max(self.features.values(), key=lambda f: len(f[0]) * len(f[1]))
+            band = epipolar_band(ft.pts, fs.pts, self.best.F, cfg.guided_band_px * max(self.scale, 0.5))
+            pairs, thr = mutual_ratio_matches(ft.desc, fs.desc, cfg.guided_ratio, True, band), strict
+        mt, ms = ft.pts[pairs[:, 0]], fs.pts[pairs[:, 1]]
+        # SIFT emits one keypoint per dominant orientation, so a location can appear 2-3 times (25% of
+        # the apple video's keypoints): identical matches would be counted twice by the robust fits.
+        _, first = np.unique(np.concatenate([mt, ms], axis=1), axis=0, return_index=True)
+        first.sort()
+        mt, ms = mt[first], ms[first]
+        F, keep = verify_fundamental(mt, ms, thr, cfg)
+        mt, ms = mt[keep], ms[keep]
+        support = hole_support(self.hole, mt, cfg.hole_support_radius_px * self.scale)
+        weak = []
+        if len(mt) < cfg.min_verified:
+            weak.append(f"{len(mt)} verified matches < {cfg.min_verified}")
+        if support < cfg.min_hole_support:
+            weak.append(
+                f"{100 * support:.0f}% of the hole near a verified match < {100 * cfg.min_hole_support:.0f}%"
+            )
+        report = RungReport(rung, len(first), len(mt), support, time.perf_counter() - t0, "; ".join(weak))
+        cand = _Candidate(report, mt, ms, F, (len(ft), len(fs)))
+        if self.best is None or _score(cand) > _score(self.best):
+            self.best = cand
+        return cand
+
+
+def _score(c: _Candidate) -> tuple[bool, bool, int]:
+    """Order of preference between rungs: a verified geometry, then any F, then more inliers."""
+    return c.report.verified, c.F is not None, c.report.n_verified
+
+
+def match_pair(
+    target: np.ndarray, source: np.ndarray, hole: np.ndarray, cfg: MatchingConfig, scale_px: float = 1.0
+) -> Matches:
+    """Match ``target`` (with boolean ``hole``) against ``source``; both RGB at working resolution.
+
+    ``scale_px`` converts the config's pixel distances (given at a 1280-px long side) to this image.
+    Never raises on valid images: a pair without a verifiable geometry gives :attr:`Matches.too_few`.
+    """
+    start = time.perf_counter()
+    ladder = _Ladder(target, source, hole, cfg, scale_px, start)
+    reports: list[RungReport] = []
+    notes: list[str] = []
+    budget_spent = False
+    for rung in RUNGS[: RUNGS.index(cfg.max_rung) + 1]:
+        if reports and time.perf_counter() >= ladder.deadline:
+            budget_spent = True
+            notes.append(f"time budget {cfg.time_budget_s:g} s spent before rung {rung}")
+            break
+        cand = ladder.run(rung)
+        if cand is None:
+            notes.append(f"rung {rung} skipped: no fundamental matrix to guide it")
+            continue
+        reports.append(cand.report)
+        if cand.report.verified:
+            break
+        notes.append(f"rung {rung} weak: {cand.report.weak}")
+    best = ladder.best
+    elapsed = time.perf_counter() - start
+    budget_spent = budget_spent or (elapsed >= cfg.time_budget_s and not best.report.verified)
+    return Matches(
+        best.pts_t,
+        best.pts_s,
+        best.F,
+        best.n_kp[0],
+        best.n_kp[1],
+        best.report.n_tentative,
+        rung=best.report.rung,
+        rungs=tuple(reports),
+        verified=best.report.verified,
+        budget_spent=budget_spent,
+        time_s=elapsed,
+        notes=tuple(notes),
+    )
