@@ -22,6 +22,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 PAIRS = ROOT.parent / "shared" / "data" / "pairs"
+MULTIVIEW = ROOT.parent / "shared" / "data" / "multiview"
 OUT = ROOT / "docs" / "results.md"
 PY = sys.executable
 
@@ -48,6 +49,60 @@ SECTIONS = [
         "whole image (papers' convention) and over the hole; wins count pairs with a higher hole PSNR.",
         _eval("{out}", "--methods", "opencv_inpaint,homography,geofill"),
         "summary.md",
+    ),
+    Section(
+        "multiview",
+        "Several references on the multi-reference sets (`geofill eval`)",
+        "The 7 DEV sets of `../shared/data/multiview` (a target and 3-4 references each), the same stroke "
+        "holes as the pairs. Every method with the primary reference alone, each other reference alone "
+        "(`[ref k]`), and geofill with all references (`[all]`, graph-cut seams).",
+        [
+            PY,
+            "-m",
+            "geofill.cli",
+            "eval",
+            "--pairs",
+            str(MULTIVIEW),
+            "--out",
+            "{out}",
+            "--methods",
+            "homography,geofill",
+        ],
+        "summary.md",
+    ),
+    Section(
+        "multiview_feather",
+        "Seams between references: feathered per-pixel winners (`geofill eval --methods geofill_feather`)",
+        "As above with `fusion.seams=feather` (the per-pixel best reference, blended over 6 px) instead of "
+        "the graph cut, all references only; compare its `[all]` row with the graph cut's.",
+        [
+            PY,
+            "-m",
+            "geofill.cli",
+            "eval",
+            "--pairs",
+            str(MULTIVIEW),
+            "--out",
+            "{out}",
+            "--methods",
+            "geofill_feather",
+            "--references",
+            "all",
+        ],
+        "summary.md",
+    ),
+    Section(
+        "shared_focal",
+        "One focal for all references (`benchmarks/shared_focal.py`)",
+        "The multi-reference sets with a true K: the target focal's error per pair (each reference alone) "
+        "and from all pairs together (`intrinsics.shared_camera`).",
+        [PY, "benchmarks/shared_focal.py"],
+    ),
+    Section(
+        "multiref",
+        "Time against the number of references (`benchmarks/multiref.py`)",
+        "A 1280x720 ray-cast scene, 1-3 references, one after the other or two at once (`fusion.parallel`).",
+        [PY, "benchmarks/multiref.py"],
     ),
     Section(
         "sweep",
@@ -213,11 +268,17 @@ SECTIONS = [
 ]
 
 
-def run_section(sec: Section) -> str:
+def run_section(sec: Section, reuse: Path | None = None) -> str:
+    """Run ``sec``'s command and format its result; with ``reuse``, a folder an earlier run of the
+    same command wrote its results to, take them from there instead (for eval sections)."""
     with tempfile.TemporaryDirectory() as tmp:
         cmd = [c.replace("{out}", tmp) for c in sec.command]
         t0 = time.perf_counter()
-        proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
+        if reuse is not None:
+            proc = subprocess.CompletedProcess(cmd, 0, "", "")
+            tmp = str(reuse)
+        else:
+            proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
         took = time.perf_counter() - t0
         if proc.returncode != 0:
             body = f"FAILED (exit {proc.returncode}):\n{proc.stderr[-3000:]}"
@@ -227,18 +288,25 @@ def run_section(sec: Section) -> str:
             body = proc.stdout
     shown = " ".join(shlex.quote(c) for c in sec.command).replace(PY, ".venv/bin/python")
     shown = shown.replace(str(PAIRS), "../shared/data/pairs").replace("{out}", "OUT")
+    shown = shown.replace(str(MULTIVIEW), "../shared/data/multiview")
     if sec.result_file:
         body = re.sub(r"^# ", "#### ", body, flags=re.M).replace("\n## ", "\n#### ")
     else:
         body = f"```\n{body.rstrip()}\n```"
+    when = "results of an earlier run of this command" if reuse else f"took {took:.0f} s"
     return f"<!-- section:{sec.name} -->\n## {sec.title}\n\n{sec.about}\n\n```bash\n{shown}\n```\n\n" \
-        f"{body.rstrip()}\n\n_(took {took:.0f} s)_\n<!-- end:{sec.name} -->\n"  # fmt: skip
+        f"{body.rstrip()}\n\n_({when})_\n<!-- end:{sec.name} -->\n"  # fmt: skip
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--only", help="comma-separated section names: " + ",".join(s.name for s in SECTIONS))
+    ap.add_argument(
+        "--reuse", action="append", default=[], metavar="NAME=DIR",
+        help="take section NAME's result file from DIR, where its command already wrote it",
+    )  # fmt: skip
     args = ap.parse_args(argv)
+    reuse = dict(item.split("=", 1) for item in args.reuse)
     wanted = args.only.split(",") if args.only else [s.name for s in SECTIONS]
     unknown = set(wanted) - {s.name for s in SECTIONS}
     if unknown:
@@ -246,7 +314,9 @@ def main(argv: list[str] | None = None) -> int:
     for sec in SECTIONS:
         if sec.name in wanted:
             print(f"running {sec.name} ...", file=sys.stderr, flush=True)
-            write(sec.name, run_section(sec))  # after each section: a long run keeps what it finished
+            write(
+                sec.name, run_section(sec, Path(reuse[sec.name]) if sec.name in reuse else None)
+            )  # after each section: a long run keeps what it finished
     print(f"wrote {OUT}", file=sys.stderr)
     return 0
 
