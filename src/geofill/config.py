@@ -374,12 +374,20 @@ class FusionConfig:
     #: How references' regions meet: "graphcut" (OpenCV's colour-gradient graph-cut seams between
     #: the overlapping references, then a short feather) or "feather" (per-pixel best reference,
     #: blended over ``feather_px``).
-    seams: Literal["graphcut", "feather"] = "graphcut"
+    seams: Literal["graphcut", "feather", "blend"] = "graphcut"
+    #: ``blend``: the references covering a pixel averaged with weights score ** blend_power.
+    blend_power: float = 2.0
     #: Width (px) of the blend across the boundary between two references' regions.
     feather_px: float = 6.0
-    #: Band error (mean absolute difference, 0-255, on the known ring after colour correction) at
-    #: which a reference's score halves.
+    #: Agreement with the target: the render's error (mean absolute difference, 0-255) on the known
+    #: ring around the hole after colour correction, spread into the hole with a Gaussian of
+    #: ``band_sigma_px`` (so each part of the hole is judged by the ring next to it); a
+    #: reference's score halves at an error of ``band_error_scale``.
     band_error_scale: float = 12.0
+    band_sigma_px: float = 32.0
+    #: Where three or more references cover a pixel, a reference's score also halves at this
+    #: distance (0-255) from their per-pixel median: a misaligned reference disagrees with the others.
+    consensus_scale: float = 16.0
     #: Distance (px) from a mesh cut or the render's border below which a pixel's score falls.
     edge_distance_px: float = 16.0
     #: Viewing-direction change (deg, target ray vs. source ray at the surface) at which a
@@ -487,6 +495,7 @@ PRESETS: dict[str, dict[str, Any]] = {
     "fused": {"depth.backend": "fused"},
     # Several references: per-pixel winners blended, without the graph-cut seams.
     "feather": {"fusion.seams": "feather"},
+    "blend": {"fusion.seams": "blend"},
 }
 
 

@@ -3,8 +3,10 @@
 Every usable reference brings a refined render of the hole (colour-corrected, flow-aligned). Per
 reference and pixel a score in (0, 1] multiplies what can be measured there:
 
-- agreement with the target on the known ring around the hole after colour correction (the
-  refinement's band error): ``0.5 ** (band_error / band_error_scale)``;
+- agreement with the target on the known ring around the hole after colour correction, spread
+  into the hole so that each part is judged by the ring next to it: ``0.5 ** (error / band_error_scale)``;
+- agreement with the other references where three or more cover the pixel (distance to their
+  per-pixel median): ``0.5 ** (distance / consensus_scale)``;
 - distance to the render's edge, i.e. to a mesh cut or a disocclusion, where depth is least
   reliable: ``min(1, distance / edge_distance_px)``;
 - resolution: how much the source's footprint is stretched (the source area one target pixel
@@ -15,7 +17,8 @@ The best-scoring reference wins each pixel. ``seams="graphcut"`` then lets OpenC
 graph cut (:class:`cv2.detail_GraphCutSeamFinder`, Kwatra et al. 2003) move the boundary between
 two references inside the pixels where both score within ``candidate_ratio`` of the best, so seams
 run where the two renders agree; ``seams="feather"`` keeps the per-pixel winner. Either way the
-regions are blended over ``feather_px``. The renders are never mixed where only one covers a pixel.
+regions are blended over ``feather_px``. ``seams="blend"`` instead averages the references that
+cover a pixel with weights ``score ** blend_power``. A render is never mixed in where it has no data.
 """
 
 from __future__ import annotations
@@ -90,15 +93,26 @@ def fuse_references(
     rows, cols = _window(refs, hole)
     hole_w = hole[rows, cols]
     alphas = np.stack([r.refined.alpha[rows, cols] for r in refs])
-    scores = np.stack([reference_score(r, hole.shape, fc)[rows, cols] for r in refs])
+    images = np.stack([r.refined.image[rows, cols] for r in refs]).astype(np.float32)
+    ring = _known_ring(hole, config_px(cfg.refine.band_px, hole.shape))[rows, cols]
+    scores = np.stack(
+        [
+            reference_score(r, images[k], target[rows, cols], ring, rows, cols, hole.shape, fc)
+            for k, r in enumerate(refs)
+        ]
+    )
+    scores *= _consensus(images, alphas, fc.consensus_scale)
     # Every covered pixel must pick a reference that covers it, however low its score.
     scores = np.where(alphas, np.maximum(scores, 1e-6), 0.0)
     best = scores.argmax(axis=0)
     covered = alphas.any(axis=0)
     if fc.seams == "graphcut":
         best = _graphcut_labels(refs, rows, cols, scores, best, covered, fc.candidate_ratio)
-    images = np.stack([r.refined.image[rows, cols] for r in refs]).astype(np.float32)
-    weights = _feathered_weights(best, alphas, covered, config_px(fc.feather_px, hole.shape))
+    if fc.seams == "blend":
+        weights = scores**fc.blend_power
+        weights /= np.maximum(weights.sum(axis=0), 1e-12)[None]
+    else:
+        weights = _feathered_weights(best, alphas, covered, config_px(fc.feather_px, hole.shape))
     fused_w = np.rint(np.einsum("khw,khwc->hwc", weights, images)).clip(0, 255).astype(np.uint8)
     image = np.zeros_like(target)
     image[rows, cols] = fused_w
@@ -115,26 +129,69 @@ def fuse_references(
     return Fusion(image, alpha, labels, f"{fc.seams} of {len(refs)} references", mean_scores)
 
 
-def reference_score(ref: ReferenceArtifacts, shape: tuple[int, int], cfg: FusionConfig) -> np.ndarray:
-    """HxW float32 score in [0, 1] of ``ref``'s render at each target pixel (0 where it has none)."""
+def reference_score(
+    ref: ReferenceArtifacts,
+    image: np.ndarray,
+    target: np.ndarray,
+    ring: np.ndarray,
+    rows: slice,
+    cols: slice,
+    shape: tuple[int, int],
+    cfg: FusionConfig,
+) -> np.ndarray:
+    """Score in [0, 1] of ``ref``'s refined render ``image`` (float32, the window ``rows, cols`` of
+    a target of ``shape``) at each pixel of the window, from everything but the other references
+    (0 where it has no render). ``ring``: the known pixels next to the hole, in the window."""
     refined = ref.refined
-    alpha = refined.alpha
-    band_error = refined.info.band_error_after
-    if not np.isfinite(band_error):
-        band_error = 2.0 * cfg.band_error_scale  # nothing to check it against: trust it less
-    score = np.zeros(shape, np.float32)
-    rows, cols = refined.render.window()
-    a = alpha[rows, cols]
+    a = refined.alpha[rows, cols]
     if not a.any():
-        return score
+        return np.zeros(a.shape, np.float32)
+    px = config_px(1.0, shape)
+    error = _ring_error(image, target, ring & a, cfg.band_sigma_px * px, 2.0 * cfg.band_error_scale)
     edge = cv2.distanceTransform(a.astype(np.uint8), cv2.DIST_L2, 3)
-    edge_w = np.clip(edge / max(config_px(cfg.edge_distance_px, shape), 1.0), 0.05, 1.0)
+    edge_w = np.clip(edge / max(cfg.edge_distance_px * px, 1.0), 0.05, 1.0)
     area = _footprint_area(refined.render.map_x[rows, cols], refined.render.map_y[rows, cols], a)
     angle = _viewing_angle_deg(ref, shape, rows, cols)
-    s = 0.5 ** (band_error / cfg.band_error_scale) * edge_w * np.sqrt(np.clip(area, 0.0, 1.0))
+    s = 0.5 ** (error / cfg.band_error_scale) * edge_w * np.sqrt(np.clip(area, 0.0, 1.0))
     s *= 0.5 ** (angle / cfg.angle_scale_deg)
-    score[rows, cols] = np.where(a, s, 0.0)
-    return score
+    return np.where(a, s, 0.0).astype(np.float32)
+
+
+def _known_ring(hole: np.ndarray, width_px: float) -> np.ndarray:
+    """Known pixels within ``width_px`` of the hole."""
+    dist = cv2.distanceTransform((~hole).astype(np.uint8), cv2.DIST_L2, 3)
+    return ~hole & (dist <= max(width_px, 1.0))
+
+
+def _ring_error(
+    image: np.ndarray, target: np.ndarray, ring: np.ndarray, sigma: float, fallback: float
+) -> np.ndarray:
+    """Mean absolute difference (0-255) between ``image`` and ``target`` on ``ring``, spread over
+    the window by normalised Gaussian smoothing; far from any ring pixel it tends to the ring's
+    mean (``fallback`` when the render covers none of the ring)."""
+    w = ring.astype(np.float32)
+    if not ring.any():
+        return np.full(ring.shape, fallback, np.float32)
+    err = np.abs(image - target.astype(np.float32)).mean(axis=-1) * w
+    overall = float(err.sum() / w.sum())
+    eps = 1e-3
+    num = cv2.GaussianBlur(err, (0, 0), sigma)
+    den = cv2.GaussianBlur(w, (0, 0), sigma)
+    return (num + eps * overall) / (den + eps)
+
+
+def _consensus(images: np.ndarray, alphas: np.ndarray, scale: float) -> np.ndarray:
+    """(K, H, W) factor ``0.5 ** (distance to the covering references' median / scale)`` where at
+    least three references cover a pixel, else 1 (two cannot outvote each other)."""
+    out = np.ones(alphas.shape, np.float32)
+    many = alphas.sum(axis=0) >= 3
+    if not many.any():
+        return out
+    stack = np.where(alphas[..., None], images, np.nan)[:, many]  # (K, N, 3)
+    median = np.nanmedian(stack, axis=0)
+    dist = np.abs(stack - median[None]).mean(axis=-1)
+    out[:, many] = np.where(np.isfinite(dist), 0.5 ** (dist / scale), 1.0)
+    return out
 
 
 def _window(refs: Sequence[ReferenceArtifacts], hole: np.ndarray) -> tuple[slice, slice]:
