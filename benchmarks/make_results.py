@@ -55,7 +55,7 @@ SECTIONS = [
         "Several references on the multi-reference sets (`geofill eval`)",
         "The 7 DEV sets of `../shared/data/multiview` (a target and 3-4 references each), the same stroke "
         "holes as the pairs. Every method with the primary reference alone, each other reference alone "
-        "(`[ref k]`), and geofill with all references (`[all]`, graph-cut seams).",
+        "(`[ref k]`), and geofill with all references (`[all]`, feathered per-pixel winners).",
         [
             PY,
             "-m",
@@ -71,10 +71,10 @@ SECTIONS = [
         "summary.md",
     ),
     Section(
-        "multiview_feather",
-        "Seams between references: feathered per-pixel winners (`geofill eval --methods geofill_feather`)",
-        "As above with `fusion.seams=feather` (the per-pixel best reference, blended over 6 px) instead of "
-        "the graph cut, all references only; compare its `[all]` row with the graph cut's.",
+        "multiview_graphcut",
+        "Seams between references: graph cut (`geofill eval --methods geofill_graphcut`)",
+        "As above with `fusion.seams=graphcut` (OpenCV graph-cut seams between the per-pixel winners) "
+        "instead of feathered winners, all references only; compare its `[all]` row with the default's.",
         [
             PY,
             "-m",
@@ -85,7 +85,7 @@ SECTIONS = [
             "--out",
             "{out}",
             "--methods",
-            "geofill_feather",
+            "geofill_graphcut",
             "--references",
             "all",
         ],

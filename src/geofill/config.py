@@ -371,10 +371,11 @@ class FusionConfig:
     """Choosing, per hole pixel, which reference supplies it (:mod:`geofill.fusion`). Pixel
     distances are at a 1280-px long side and scale with the image."""
 
-    #: How references' regions meet: "graphcut" (OpenCV's colour-gradient graph-cut seams between
-    #: the overlapping references, then a short feather) or "feather" (per-pixel best reference,
-    #: blended over ``feather_px``).
-    seams: Literal["graphcut", "feather", "blend"] = "graphcut"
+    #: How references' regions meet: "feather" (per-pixel best reference, blended over
+    #: ``feather_px``), "graphcut" (OpenCV's colour-gradient graph-cut seams between the
+    #: overlapping references, then the same feather) or "blend" (score-weighted average). On the
+    #: 7 multi-reference DEV sets feather gave the best mean hole PSNR (benchmarks: docs/results.md).
+    seams: Literal["graphcut", "feather", "blend"] = "feather"
     #: ``blend``: the references covering a pixel averaged with weights score ** blend_power.
     blend_power: float = 2.0
     #: Width (px) of the blend across the boundary between two references' regions.
@@ -383,8 +384,8 @@ class FusionConfig:
     #: ring around the hole after colour correction, spread into the hole with a Gaussian of
     #: ``band_sigma_px`` (so each part of the hole is judged by the ring next to it); a
     #: reference's score halves at an error of ``band_error_scale``.
-    band_error_scale: float = 12.0
-    band_sigma_px: float = 32.0
+    band_error_scale: float = 2.0
+    band_sigma_px: float = 16.0
     #: Where three or more references cover a pixel, a reference's score also halves at this
     #: distance (0-255) from their per-pixel median: a misaligned reference disagrees with the others.
     consensus_scale: float = 16.0
@@ -493,8 +494,8 @@ PRESETS: dict[str, dict[str, Any]] = {
     "sparse": {"depth.backend": "sparse"},
     "stereo": {"depth.backend": "stereo"},
     "fused": {"depth.backend": "fused"},
-    # Several references: per-pixel winners blended, without the graph-cut seams.
-    "feather": {"fusion.seams": "feather"},
+    # Several references: graph-cut seams between the per-pixel winners, or a score-weighted average.
+    "graphcut": {"fusion.seams": "graphcut"},
     "blend": {"fusion.seams": "blend"},
 }
 
