@@ -25,6 +25,7 @@ from geofill.errors import (
     ImageTooSmallError,
     MaskSizeError,
     MaskTooLargeError,
+    MissingExtraError,
     MissingFileError,
     OutputError,
     UnreadableFileError,
@@ -571,7 +572,7 @@ def test_depth_exr(tmp_path):
 def test_depth_exr_without_the_extra(tmp_path, monkeypatch):
     (tmp_path / "d.exr").write_bytes(b"\x76\x2f\x31\x01")
     monkeypatch.setitem(sys.modules, "OpenEXR", None)  # makes `import OpenEXR` fail
-    with pytest.raises(DepthFileError, match=r"d\.exr: reading EXR needs the optional 'exr' extra"):
+    with pytest.raises(MissingExtraError, match=r"d\.exr: reading EXR needs the optional 'exr' extra"):
         io.read_depth_file(tmp_path / "d.exr", expected_size=(8, 6))
 
 

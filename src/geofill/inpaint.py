@@ -18,6 +18,7 @@ import numpy as np
 
 from .config import InpaintConfig
 from .errors import InpaintModelError
+from .extras import available, require
 from .weights import ResolvedWeights, WeightsSpec, WeightsUnavailable, resolve_weights
 
 _METHODS = {"telea": cv2.INPAINT_TELEA, "ns": cv2.INPAINT_NS}
@@ -87,6 +88,12 @@ def get_inpainter(cfg: InpaintConfig, say: Callable[[str], None] | None = None) 
     used is an :class:`InpaintModelError`; ``auto`` otherwise falls back to Telea and says why."""
     if cfg.method in _METHODS:
         return Inpainter(cfg.method, cfg.method, _opencv(cfg.method, cfg.radius_px))
+    if not available("onnxruntime"):
+        if cfg.method == "lama" or cfg.lama_model:
+            require("onnxruntime", "LaMa inpainting")
+        return Inpainter(
+            "telea", "telea (auto: LaMa needs onnxruntime, not installed)", _opencv("telea", cfg.radius_px)
+        )
     weights = resolve_lama_model(cfg, say)
     if isinstance(weights, WeightsUnavailable):
         problem = str(weights)

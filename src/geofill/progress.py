@@ -1,4 +1,4 @@
-"""Per-stage timing and one-line progress messages on stderr."""
+"""Per-stage timing, one-line progress messages on stderr, and the fill's time budget."""
 
 from __future__ import annotations
 
@@ -8,22 +8,44 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import TextIO
 
+from .errors import TimeBudgetError
+
 
 class Progress:
-    """Times named stages; prints ``geofill: <stage> ... <s> s  <note>`` unless quiet."""
+    """Times named stages; prints ``geofill: <stage> ... <s> s  <note>`` unless quiet.
 
-    def __init__(self, quiet: bool = False, stream: TextIO | None = None) -> None:
+    ``time_budget_s`` bounds the whole run from this object's creation: every stage runs inside
+    :meth:`stage`, which raises :class:`TimeBudgetError` when a stage would start past the deadline
+    (a stage already running is not interrupted: the budget is a bound on when work starts)."""
+
+    def __init__(
+        self, quiet: bool = False, stream: TextIO | None = None, time_budget_s: float | None = None
+    ) -> None:
         self.quiet = quiet
         self.stream = stream if stream is not None else sys.stderr
         self.timings: dict[str, float] = {}
+        self.time_budget_s = time_budget_s
+        self._start = time.monotonic()
 
     def say(self, message: str) -> None:
         if not self.quiet:
             print(f"geofill: {message}", file=self.stream, flush=True)
 
+    def check_deadline(self, next_stage: str) -> None:
+        """Raise TimeBudgetError when the budget is spent (``next_stage`` is named in the message)."""
+        if self.time_budget_s is None:
+            return
+        elapsed = time.monotonic() - self._start
+        if elapsed > self.time_budget_s:
+            raise TimeBudgetError(
+                f"time budget of {self.time_budget_s:g} s exceeded after {elapsed:.1f} s, before stage "
+                f"'{next_stage}' (raise it with --set time_budget_s=SECONDS)"
+            )
+
     @contextmanager
     def stage(self, name: str) -> Iterator[list[str]]:
         """Context that times ``name``; append strings to the yielded list to print them with it."""
+        self.check_deadline(name)
         notes: list[str] = []
         t0 = time.perf_counter()
         yield notes  # a stage that raises is reported by whoever handles the error, not here
