@@ -15,7 +15,6 @@ from .errors import MissingExtraError
 EXTRAS: dict[str, str] = {
     "onnxruntime": "onnx",
     "huggingface_hub": "onnx",
-    "tqdm": "onnx",
     "OpenEXR": "exr",
     "pillow_heif": "heif",
     "matplotlib": "eval",

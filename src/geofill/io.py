@@ -7,7 +7,8 @@ with the file (or array) it is about.
 
 Decoders: Pillow opens every image lazily, so its header gives the size for the pixel-limit check
 before any pixel is decoded, and its EXIF gives the orientation and the lens tags. Pillow also
-decodes the 8-bit images. It reduces 16-bit colour to 8 bits by keeping the high byte (51200 ->
+decodes the 8-bit images, except YCbCr and grey JPEGs: simplejpeg decodes those strictly (a scan
+cut short is an error, not grey pixels). It reduces 16-bit colour to 8 bits by keeping the high byte (51200 ->
 200 where round(51200 / 257) = 199 is right) and cannot decode float or 32-bit TIFF samples, so
 16-bit PNGs go through OpenCV (libpng keeps all 16 bits) and deeper-than-8-bit TIFFs through
 tifffile.
@@ -404,6 +405,8 @@ def _read_raster(
         try:
             img = Image.open(fh, formats=formats)
         except UnidentifiedImageError as exc:
+            if _is_tiff(fh):  # float64/float16 or multi-channel float samples: Pillow has no mode
+                return _read_tiff_without_pillow(p, max_pixels=max_pixels, min_side=min_side)
             raise CorruptImageError(f"{p}: not a PNG, JPEG, WebP, TIFF or HEIC image, or corrupt") from exc
         except _DECODE_ERRORS as exc:
             raise CorruptImageError(f"{p}: corrupt image header ({_one_line(exc)})") from exc
@@ -421,6 +424,34 @@ def _read_raster(
             ) from exc
         metadata = _carried_metadata(img, exif, orientation)
     return pixels, orientation, camera, metadata
+
+
+def _is_tiff(fh: IO[bytes]) -> bool:
+    fh.seek(0)
+    head = fh.read(4)
+    fh.seek(0)
+    return head in (b"II*\x00", b"MM\x00*", b"II+\x00", b"MM\x00+")  # classic and BigTIFF
+
+
+def _read_tiff_without_pillow(
+    p: Path, *, max_pixels: int, min_side: int
+) -> tuple[np.ndarray, int, ExifCamera, ImageMetadata]:
+    """A TIFF Pillow cannot open (float samples other than single-channel float32): size from
+    tifffile's header before decoding, then the pixels; orientation from the TIFF tag."""
+    try:
+        with tifffile.TiffFile(p) as tif:
+            page = tif.pages[0]
+            h, w = (
+                (page.shape[1:3] if page.axes.startswith("S") else page.shape[:2])
+                if page.ndim > 1
+                else (0, 0)
+            )
+            _check_size(str(p), w, h, max_pixels=max_pixels, min_side=min_side)
+            tag = page.tags.get(274)  # Orientation
+            orientation = int(tag.value) if tag is not None and int(tag.value) in range(1, 9) else 1
+        return _read_tiff(p), orientation, ExifCamera(), ImageMetadata()
+    except _DECODE_ERRORS as exc:
+        raise CorruptImageError(f"{p}: cannot decode TIFF, truncated or corrupt ({_one_line(exc)})") from exc
 
 
 def _is_heif(fh: IO[bytes]) -> bool:
@@ -461,7 +492,20 @@ def _decode(img: Image.Image, path: Path, fh: IO[bytes]) -> np.ndarray:
         return data
     if img.format == "TIFF" and _tiff_is_deep(img):
         return _read_tiff(path)
+    if img.format in ("JPEG", "MPO") and img.mode in ("RGB", "L"):
+        return _decode_jpeg_strict(path, grey=img.mode == "L")
     return np.array(img.convert("RGBA" if img.has_transparency_data else "RGB"))  # writable
+
+
+def _decode_jpeg_strict(path: Path, grey: bool) -> np.ndarray:
+    """A YCbCr or grey JPEG through simplejpeg (libjpeg-turbo, the same pixels as Pillow) in strict
+    mode: libjpeg decodes a scan cut short by an end marker as flat grey with only a warning, which
+    Pillow drops, so a 10 kB file whose header claims 7000 x 7000 would come back as 49 MP of grey.
+    Strict mode turns that warning into a ValueError (a corrupt image)."""
+    import simplejpeg
+
+    pixels = simplejpeg.decode_jpeg(path.read_bytes(), colorspace="GRAY" if grey else "RGB", strict=True)
+    return pixels[..., 0] if grey else pixels
 
 
 def _png_bit_depth(fh: IO[bytes]) -> int:
