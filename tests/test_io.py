@@ -606,13 +606,13 @@ def test_depth_errors(tmp_path):
 
 def test_heic_input_through_the_extra(tmp_path):
     pillow_heif = pytest.importorskip("pillow_heif")
-    rgb = np.random.default_rng(0).integers(0, 256, (80, 96, 3), dtype=np.uint8)
-    pillow_heif.from_bytes(mode="RGB", size=(96, 80), data=rgb.tobytes()).save(
-        tmp_path / "p.heic", quality=-1
-    )
+    yy, xx = np.mgrid[0:80, 0:96]
+    rgb = np.dstack([xx * 2, yy * 3, 255 - xx - yy]).astype(np.uint8)  # smooth: survives chroma subsampling
+    heif = pillow_heif.from_bytes(mode="RGB", size=(96, 80), data=rgb.tobytes())
+    heif.save(tmp_path / "p.heic", quality=95)
     got = io.read_image(tmp_path / "p.heic").pixels
     assert got.shape == (80, 96, 3)
-    assert np.abs(got.astype(int) - rgb).mean() < 3  # lossless HEVC still converts YCbCr <-> RGB
+    assert np.abs(got.astype(int) - rgb).mean() < 3
 
 
 def test_heic_without_the_extra_names_it(tmp_path, monkeypatch):
@@ -658,7 +658,7 @@ def test_zero_dimensional_npy_depth(tmp_path):
 def test_long_names_are_errors_not_crashes(tmp_path):
     with pytest.raises(UnreadableFileError, match="File name too long"):
         io.read_image(tmp_path / ("a" * 300 + ".png"))
-    with pytest.raises(OutputError, match="File name too long"):
+    with pytest.raises(OutputError, match=r"file name too long \(304 bytes; the limit here is 237"):
         io.check_output_path(tmp_path / ("a" * 300 + ".png"))
     # Short enough for the file system, too long once the temporary file's affixes are added.
     with pytest.raises(OutputError, match=r"file name too long \(244 bytes; the limit here is 237 bytes\)"):
