@@ -6,6 +6,7 @@ import sys
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
+from time import monotonic
 from typing import TextIO
 
 from .errors import TimeBudgetError
@@ -25,7 +26,7 @@ class Progress:
         self.stream = stream if stream is not None else sys.stderr
         self.timings: dict[str, float] = {}
         self.time_budget_s = time_budget_s
-        self._start = time.monotonic()
+        self._start = monotonic()
 
     def say(self, message: str) -> None:
         if not self.quiet:
@@ -35,7 +36,7 @@ class Progress:
         """Raise TimeBudgetError when the budget is spent (``next_stage`` is named in the message)."""
         if self.time_budget_s is None:
             return
-        elapsed = time.monotonic() - self._start
+        elapsed = monotonic() - self._start
         if elapsed > self.time_budget_s:
             raise TimeBudgetError(
                 f"time budget of {self.time_budget_s:g} s exceeded after {elapsed:.1f} s, before stage "
