@@ -26,7 +26,7 @@ def corpus(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def cases(corpus):
-    return corpus.build(n_random_config=12)
+    return corpus.build(n_random_config=12, n_mutations=9)
 
 
 def test_corpus_covers_every_family(cases):
