@@ -333,9 +333,12 @@ class InpaintConfig:
 
     #: "telea"/"ns": OpenCV (no weights); "lama": LaMa through ONNX Runtime; "auto": LaMa when its
     #: model resolves (path, $GEOFILL_LAMA_MODEL, cache, hub), else Telea (the reason is reported).
-    method: Literal["telea", "ns", "lama", "auto"] = "auto"
+    method: Literal["telea", "ns", "patchmatch", "lama", "auto"] = "auto"
     #: OpenCV inpainting neighbourhood radius (px).
     radius_px: Annotated[float, Range(0, 100, lo_open=True)] = 5.0
+    #: "patchmatch": radius (px) of the compared patches, (2r + 1)^2 pixels (PyPatchMatch's examples
+    #: use 3; larger follows larger structures, much slower).
+    patch_radius_px: Annotated[int, Range(1, 15)] = 3
     #: Explicit LaMa ONNX file (e.g. Carve/LaMa-ONNX's lama.onnx); wins over the environment
     #: variable, the cache and the hub.
     lama_model: str | None = None

@@ -17,6 +17,7 @@ EXTRAS: dict[str, str] = {
     "huggingface_hub": "onnx",
     "OpenEXR": "exr",
     "pillow_heif": "heif",
+    "patchmatch": "patchmatch",
     "matplotlib": "eval",
 }
 

@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 
 from .config import InpaintConfig
-from .errors import InpaintModelError
+from .errors import InpaintModelError, MissingExtraError
 from .extras import available, require
 from .weights import ResolvedWeights, WeightsSpec, WeightsUnavailable, resolve_weights
 
@@ -74,6 +74,32 @@ def _opencv(method: str, radius_px: float) -> Callable[[np.ndarray, np.ndarray],
     return run
 
 
+#: Context kept around the region's bounding box for PatchMatch, as a fraction of its longer side
+#: (at least 32 px): the patches it copies come from there, and a window keeps 4K frames quick.
+_PATCHMATCH_CONTEXT = 1.0
+
+
+def _patchmatch(patch_radius_px: int) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
+    patchmatch = require("patchmatch", "PatchMatch inpainting")
+    if not patchmatch.patchmatch_available:
+        raise MissingExtraError("PatchMatch inpainting: PyPatchMatch is installed without its native library")
+
+    def run(image: np.ndarray, region: np.ndarray) -> np.ndarray:
+        ys, xs = np.nonzero(region)
+        y0, y1, x0, x1 = int(ys.min()), int(ys.max()) + 1, int(xs.min()), int(xs.max()) + 1
+        pad = max(32, round(_PATCHMATCH_CONTEXT * max(y1 - y0, x1 - x0)))
+        y0, y1 = max(y0 - pad, 0), min(y1 + pad, region.shape[0])
+        x0, x1 = max(x0 - pad, 0), min(x1 + pad, region.shape[1])
+        out = image.copy()
+        patchmatch.set_random_seed(0)  # its search is randomised: same inputs, same bytes
+        out[y0:y1, x0:x1] = patchmatch.inpaint(
+            np.ascontiguousarray(image[y0:y1, x0:x1]), region[y0:y1, x0:x1], patch_size=patch_radius_px
+        )
+        return out
+
+    return run
+
+
 def _lama(path: Path) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
     key = Path(path).resolve()
     if key not in _LAMA_CACHE:
@@ -88,6 +114,8 @@ def get_inpainter(cfg: InpaintConfig, say: Callable[[str], None] | None = None) 
     used is an :class:`InpaintModelError`; ``auto`` otherwise falls back to Telea and says why."""
     if cfg.method in _METHODS:
         return Inpainter(cfg.method, cfg.method, _opencv(cfg.method, cfg.radius_px))
+    if cfg.method == "patchmatch":
+        return Inpainter("patchmatch", "patchmatch", _patchmatch(cfg.patch_radius_px))
     if not available("onnxruntime"):
         if cfg.method == "lama" or cfg.lama_model:
             require("onnxruntime", "LaMa inpainting")

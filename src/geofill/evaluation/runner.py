@@ -29,8 +29,9 @@ from typing import Any
 import cv2
 import numpy as np
 
-from ..config import FillConfig
+from ..config import FillConfig, InpaintConfig
 from ..errors import ConfigError, InputError, MissingFileError
+from ..inpaint import inpaint_single
 from ..io import ExifCamera, read_image
 from .baselines import homography_fill_detailed, opencv_inpaint
 from .masks import (
@@ -99,7 +100,16 @@ def _homography_method(
     return MethodOutput(fill.image, {"total": time.perf_counter() - t0}, info)
 
 
+def _patchmatch_method(
+    target: np.ndarray, hole: np.ndarray, source: np.ndarray, exif: PairExif
+) -> MethodOutput:
+    t0 = time.perf_counter()
+    image = inpaint_single(target, hole, InpaintConfig(method="patchmatch"))
+    return MethodOutput(image, {"total": time.perf_counter() - t0})
+
+
 register_method("opencv_inpaint", _opencv_method)
+register_method("patchmatch_inpaint", _patchmatch_method)
 register_method("homography", _homography_method)
 
 #: geofill variants selectable by name: config overrides on top of the run's base config
@@ -127,6 +137,9 @@ GEOFILL_VARIANTS: dict[str, dict[str, Any]] = {
     "geofill_no_edge_w": {"optimize.use_edge_weight": False},
     "geofill_uniform_w": {"optimize.use_hole_weight": False, "optimize.use_edge_weight": False},
     "geofill_refine_focal": {"optimize.refine_focal": True},
+    # Single-image inpainting of what the render does not cover (issue 14): Telea or PatchMatch.
+    "geofill_telea": {"inpaint.method": "telea"},
+    "geofill_patchmatch": {"inpaint.method": "patchmatch"},
 }
 #: Depth backends (issue 4): the weight-free ones by name (``auto`` is ``geofill`` itself).
 GEOFILL_VARIANTS.update({f"geofill_{b}": {"depth.backend": b} for b in ("sparse", "stereo", "fused")})
