@@ -11,6 +11,7 @@ and ``models list`` line says so."""
 from __future__ import annotations
 
 import argparse
+import http.client
 import sys
 from dataclasses import dataclass
 
@@ -119,7 +120,7 @@ def cmd_download(args: argparse.Namespace, cfg: FillConfig) -> int:
         print(f"{name}: downloading from {e.spec.download_url()} to {dest}", file=sys.stderr)
         try:
             download(e.spec, dest, progress_bar=True)
-        except (OSError, ValueError) as exc:
+        except (OSError, ValueError, http.client.HTTPException) as exc:
             raise GeoFillError(f"{name}: download failed: {' '.join(str(exc).split())}") from exc
         note = "verified" if e.spec.sha256 or e.spec.size else "NOT verified: no published checksum"
         print(f"{name}: {dest} ({note}; sha256 {sha256_of(dest)})")

@@ -70,9 +70,11 @@ class WeightsSpec:
             return self.url
         if not self.repo_id:
             raise ValueError(f"weights '{self.name}' have neither a hub repo nor a URL")
-        hub = require("huggingface_hub", f"downloading {self.name}")
-        endpoint = endpoint or os.environ.get("HF_ENDPOINT") or hub.constants.ENDPOINT
-        return hub.hf_hub_url(
+        require("huggingface_hub", f"downloading {self.name}")
+        from huggingface_hub import constants, hf_hub_url
+
+        endpoint = endpoint or os.environ.get("HF_ENDPOINT") or constants.ENDPOINT
+        return hf_hub_url(
             self.repo_id, self.filename, revision=self.revision, endpoint=endpoint.rstrip("/")
         )
 
@@ -167,12 +169,14 @@ def download(
     """Download ``spec`` to ``dest`` atomically; raise ``OSError``/``ValueError`` naming the problem
     (network error, truncated body, size or checksum mismatch) with nothing left at ``dest``.
     ``progress_bar``: a tqdm bar on stderr (tqdm comes with huggingface_hub)."""
-    hub = require("huggingface_hub", f"downloading {spec.name}")
+    require("huggingface_hub", f"downloading {spec.name}")
+    from huggingface_hub.utils import build_hf_headers
+
     url = spec.download_url(endpoint)
     dest.parent.mkdir(parents=True, exist_ok=True)
     tmp = dest.with_name(f"{dest.name}.part-{os.getpid()}")
     # Public files only: no token is sent, so none can follow a redirect to another host.
-    req = urllib.request.Request(url, headers=hub.utils.build_hf_headers(token=False))
+    req = urllib.request.Request(url, headers=build_hf_headers(token=False))
     try:
         with urllib.request.urlopen(req, timeout=timeout) as resp, open(tmp, "wb") as out:
             announced = resp.headers.get("Content-Length")
