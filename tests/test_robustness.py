@@ -221,3 +221,30 @@ def test_models_download_offline_is_one_line(capsys):
     assert main(["models", "download", "lama"]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert err == ["geofill: error: lama: downloads disabled by HF_HUB_OFFLINE"]
+
+
+def test_patchmatch_fills_only_the_hole_and_is_deterministic():
+    pytest.importorskip("patchmatch")
+    from geofill.config import InpaintConfig
+    from geofill.inpaint import inpaint_single
+    from geofill.synthetic import make_pair
+
+    p = make_pair(seed=4, width=160, height=120)
+    cfg = InpaintConfig(method="patchmatch")
+    a, b = inpaint_single(p.target, p.hole, cfg), inpaint_single(p.target, p.hole, cfg)
+    assert np.array_equal(a, b)
+    assert np.array_equal(a[~p.hole], p.target[~p.hole])
+    # Every hole pixel is copied from somewhere: no black left where the hole was blanked.
+    blanked = p.target.copy()
+    blanked[p.hole] = 0
+    filled = inpaint_single(blanked, p.hole, cfg)
+    assert filled[p.hole].max(axis=1).min() > 0
+
+
+def test_patchmatch_without_the_extra_names_it(monkeypatch):
+    from geofill.config import InpaintConfig
+    from geofill.inpaint import get_inpainter
+
+    monkeypatch.setitem(sys.modules, "patchmatch", None)
+    with pytest.raises(MissingExtraError, match=r'PatchMatch inpainting needs .*"geofill\[patchmatch\]"'):
+        get_inpainter(InpaintConfig(method="patchmatch"))

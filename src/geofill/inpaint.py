@@ -1,10 +1,18 @@
 """Single-image inpainting for hole pixels the source cannot supply (and whole holes on fallback).
 
-``telea``/``ns``: OpenCV's fast-marching and Navier-Stokes inpainting (no weights). ``lama``: LaMa
+``telea``/``ns``: OpenCV's fast-marching and Navier-Stokes inpainting (no weights). ``patchmatch``:
+PatchMatch (Barnes et al. 2009) through PyPatchMatch, the ``patchmatch`` extra. ``lama``: LaMa
 through ONNX Runtime (:mod:`geofill.lama`), whose model is resolved like the depth networks'
 (:func:`geofill.weights.resolve_weights`: ``inpaint.lama_model`` -> ``$GEOFILL_LAMA_MODEL`` -> cache
 -> hub download only when ``inpaint.download`` is on and ``HF_HUB_OFFLINE`` unset); ``auto`` (default):
 LaMa when its model resolves, else Telea, and the report says which and why.
+
+Telea stays the weight-free default over PatchMatch. On 8 real DEV pairs (``geofill eval --limit 8``,
+brush holes of 10-30 %) Telea scored higher as the whole-hole fallback (hole PSNR 14.94 vs 13.96 dB,
+SSIM 0.51 vs 0.39) and for what the render leaves uncovered inside geofill (19.68 vs 19.48 dB, SSIM
+0.604 vs 0.598), at a twelfth of the time (1.3 vs 16 s median for a fallback fill, 2 shared cores).
+By eye PatchMatch keeps texture where Telea smears, but on large holes it copies whole structures
+into the wrong place (a second fox head, window frames in a wall), a worse failure than a smear.
 """
 
 from __future__ import annotations

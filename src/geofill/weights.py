@@ -74,9 +74,7 @@ class WeightsSpec:
         from huggingface_hub import constants, hf_hub_url
 
         endpoint = endpoint or os.environ.get("HF_ENDPOINT") or constants.ENDPOINT
-        return hf_hub_url(
-            self.repo_id, self.filename, revision=self.revision, endpoint=endpoint.rstrip("/")
-        )
+        return hf_hub_url(self.repo_id, self.filename, revision=self.revision, endpoint=endpoint.rstrip("/"))
 
     def cache_path(self, cache_dir: Path) -> Path:
         """Where geofill caches this file under ``cache_dir``."""
