@@ -25,7 +25,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--random-config", type=int, default=80, help="random bad --set values")
-    ap.add_argument("--mutations", type=int, default=110, help="damaged files and random masks")
+    ap.add_argument("--mutations", type=int, default=134, help="damaged files and random masks")
     ap.add_argument("--timeout", type=int, default=300, help="seconds per case before it counts as a hang")
     ap.add_argument("--verbose", action="store_true", help="print every case")
     args = ap.parse_args()
