@@ -6,6 +6,7 @@ import os
 import struct
 import sys
 import zlib
+from io import BytesIO
 from pathlib import Path
 
 import cv2
@@ -25,6 +26,7 @@ from geofill.errors import (
     ImageTooSmallError,
     MaskSizeError,
     MaskTooLargeError,
+    MissingExtraError,
     MissingFileError,
     OutputError,
     UnreadableFileError,
@@ -243,7 +245,7 @@ def test_unreadable_file(tmp_path, monkeypatch):
 
 def test_non_image_and_unsupported_format(tmp_path):
     (tmp_path / "text.png").write_text("hello, not an image\n" * 20)
-    with pytest.raises(CorruptImageError, match=r"text\.png: not a PNG, JPEG, WebP or TIFF image"):
+    with pytest.raises(CorruptImageError, match=r"text\.png: not a PNG, JPEG, WebP, TIFF or HEIC image"):
         io.read_image(tmp_path / "text.png")
     _save(tmp_path / "b.bmp", _rng_rgb())  # a real image, in a format we do not accept
     with pytest.raises(CorruptImageError, match=r"b\.bmp"):
@@ -571,7 +573,7 @@ def test_depth_exr(tmp_path):
 def test_depth_exr_without_the_extra(tmp_path, monkeypatch):
     (tmp_path / "d.exr").write_bytes(b"\x76\x2f\x31\x01")
     monkeypatch.setitem(sys.modules, "OpenEXR", None)  # makes `import OpenEXR` fail
-    with pytest.raises(DepthFileError, match=r"d\.exr: reading EXR needs the optional 'exr' extra"):
+    with pytest.raises(MissingExtraError, match=r"d\.exr: reading EXR needs the optional 'exr' extra"):
         io.read_depth_file(tmp_path / "d.exr", expected_size=(8, 6))
 
 
@@ -600,3 +602,70 @@ def test_depth_errors(tmp_path):
         io.read_depth_file(tmp_path / "rgb.png", expected_size=(8, 6))
     with pytest.raises(ConfigError, match="scale"):
         io.read_depth_file(tmp_path / "d.npy", expected_size=(8, 6), scale=0.0)
+
+
+def test_heic_input_through_the_extra(tmp_path):
+    pillow_heif = pytest.importorskip("pillow_heif")
+    yy, xx = np.mgrid[0:80, 0:96]
+    rgb = np.dstack([xx * 2, yy * 3, 255 - xx - yy]).astype(np.uint8)  # smooth: survives chroma subsampling
+    heif = pillow_heif.from_bytes(mode="RGB", size=(96, 80), data=rgb.tobytes())
+    heif.save(tmp_path / "p.heic", quality=95)
+    got = io.read_image(tmp_path / "p.heic").pixels
+    assert got.shape == (80, 96, 3)
+    assert np.abs(got.astype(int) - rgb).mean() < 3
+
+
+def test_heic_without_the_extra_names_it(tmp_path, monkeypatch):
+    (tmp_path / "p.heic").write_bytes(b"\x00\x00\x00\x18ftypheic\x00\x00\x00\x00mif1heic" + bytes(64))
+    monkeypatch.setitem(sys.modules, "pillow_heif", None)
+    with pytest.raises(
+        MissingExtraError, match=r'p\.heic: reading HEIC/HEIF needs .*pip install "geofill\[heif\]"'
+    ):
+        io.read_image(tmp_path / "p.heic")
+
+
+def test_float_tiffs_pillow_cannot_open(tmp_path):
+    rng = np.random.default_rng(1)
+    rgb = rng.random((70, 90, 3))
+    tifffile.imwrite(tmp_path / "f64.tif", rgb, photometric="rgb")
+    tifffile.imwrite(tmp_path / "f16.tif", rgb[..., 0].astype(np.float16))
+    assert np.array_equal(io.read_image(tmp_path / "f64.tif").pixels, np.rint(rgb * 255).astype(np.uint8))
+    grey = io.read_image(tmp_path / "f16.tif").pixels
+    assert np.abs(grey[..., 0].astype(int) - np.rint(rgb[..., 0] * 255)).max() <= 1  # float16 rounding
+
+
+def test_jpeg_cut_short_before_its_end_marker_is_corrupt(tmp_path):
+    """A JPEG whose frame header claims 7000 x 7000 over a small scan that ends early (with an end
+    marker, so libjpeg only warns) is refused, not decoded as 49 MP of grey."""
+    buf = BytesIO()
+    Image.fromarray(np.random.default_rng(2).integers(0, 256, (100, 100, 3), dtype=np.uint8)).save(
+        buf, "JPEG"
+    )
+    data = bytearray(buf.getvalue())
+    at = data.find(b"\xff\xc0")
+    struct.pack_into(">HH", data, at + 5, 7000, 7000)
+    (tmp_path / "claim.jpg").write_bytes(bytes(data))
+    with pytest.raises(CorruptImageError, match=r"claim\.jpg: .*premature end of data segment"):
+        io.read_image(tmp_path / "claim.jpg")
+
+
+def test_zero_dimensional_npy_depth(tmp_path):
+    np.save(tmp_path / "d.npy", np.float32(2.0))
+    with pytest.raises(DepthFileError, match=r"d\.npy: expected a 2-D depth map, got array shape \(\)"):
+        io.read_depth_file(tmp_path / "d.npy", expected_size=(8, 6))
+
+
+def test_long_names_are_errors_not_crashes(tmp_path):
+    with pytest.raises(UnreadableFileError, match="File name too long"):
+        io.read_image(tmp_path / ("a" * 300 + ".png"))
+    with pytest.raises(OutputError, match=r"file name too long \(304 bytes; the limit here is 237"):
+        io.check_output_path(tmp_path / ("a" * 300 + ".png"))
+    # Short enough for the file system, too long once the temporary file's affixes are added.
+    with pytest.raises(OutputError, match=r"file name too long \(244 bytes; the limit here is 237 bytes\)"):
+        io.check_output_path(tmp_path / ("a" * 240 + ".png"))
+    io.check_output_path(tmp_path / ("a" * 233 + ".png"))
+    (tmp_path / "f").write_text("x")
+    with pytest.raises(OutputError, match="exists and is not a directory"):
+        io.check_output_dir(tmp_path / "f")
+    io.check_output_dir(tmp_path / "new" / "deeper")
+    assert not (tmp_path / "new").exists()  # a check creates nothing

@@ -190,3 +190,20 @@ def test_cache_dir_follows_environment(monkeypatch, tmp_path):
     assert W.cache_dir() == tmp_path
     monkeypatch.delenv("GEOFILL_CACHE")
     assert W.cache_dir() == Path.home() / ".cache" / "geofill"
+
+
+def test_models_download_shows_progress_verifies_and_is_then_found(hub, env, monkeypatch, capsys):
+    from geofill import models
+    from geofill.cli import main
+
+    monkeypatch.setenv("HF_ENDPOINT", hub.endpoint)
+    monkeypatch.setattr(
+        models, "registry", lambda: [models.ModelEntry("tiny", SPEC, "tests", "depth.model_path")]
+    )
+    assert main(["models", "download", "tiny"]) == 0
+    captured = capsys.readouterr()
+    assert "100%" in captured.err and "100k" in captured.err  # tqdm's bar reached the whole file
+    assert f"tiny: {SPEC.cache_path(env / 'cache')} (verified; sha256 {SHA})" in captured.out
+    assert main(["models", "download", "tiny"]) == 0
+    assert "tiny: already there: tiny test model from cache" in capsys.readouterr().out
+    assert hub.requests == 1

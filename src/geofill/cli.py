@@ -1,15 +1,19 @@
-"""Command line: ``geofill fill``, ``geofill demo``, ``geofill eval``, ``geofill config``.
+"""Command line: ``geofill fill``, ``geofill demo``, ``geofill eval``, ``geofill config``,
+``geofill models``.
 
-Every user-facing problem is one line on stderr and a non-zero exit status, with nothing written."""
+Every user-facing problem is one line on stderr and a non-zero exit status, with nothing written.
+SIGTERM is turned into an exception, so an output being written is removed like on any error."""
 
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
+import typing
 from pathlib import Path
 
 from .config import PRESETS, FillConfig, parse_overrides
-from .errors import GeoFillError
+from .errors import ConfigError, GeoFillError
 from .progress import Progress
 
 
@@ -93,13 +97,40 @@ def _add_config_flags(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-pixels", type=int, help="refuse images with more pixels than this")
 
 
+def _quality(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if not 1 <= value <= 100:
+        raise argparse.ArgumentTypeError(f"expected an integer from 1 to 100, got {text!r}")
+    return value
+
+
+#: Output extensions whose encoders are lossy: the pixels outside the hole change too.
+_LOSSY_OUTPUTS = (".jpg", ".jpeg", ".webp")
+
+
 def cmd_fill(args: argparse.Namespace) -> int:
     from .debug import write_debug
-    from .io import check_output_path, read_image, read_mask, validate_pair, write_image_atomic
+    from .io import (
+        check_output_dir,
+        check_output_path,
+        read_image,
+        read_mask,
+        validate_pair,
+        write_image_atomic,
+    )
     from .pipeline import fill
+    from .preflight import check_resources
 
     cfg = _config_from_args(args)
     check_output_path(args.output)
+    lossy = Path(args.output).suffix.lower() in _LOSSY_OUTPUTS
+    if args.quality is not None and not lossy:
+        raise ConfigError(f"{args.output}: --quality applies to JPEG and WebP output only")
+    if args.debug_dir:
+        check_output_dir(args.debug_dir)
     source_paths = reference_paths(args.source or [], args.sources)
     target = read_image(args.target, max_pixels=cfg.max_pixels, min_side=cfg.min_side_px)
     sources = [read_image(p, max_pixels=cfg.max_pixels, min_side=cfg.min_side_px) for p in source_paths]
@@ -115,7 +146,17 @@ def cmd_fill(args: argparse.Namespace) -> int:
             max_mask_fraction=cfg.max_mask_fraction,
             names=(args.target, args.mask, str(path)),
         )
-    prog = Progress(quiet=args.quiet)
+    # The depth file and the depth model belong to the (first) reference the depth stage runs on.
+    check_resources(cfg, (sources[0].pixels.shape[1], sources[0].pixels.shape[0]))
+    prog = Progress(quiet=args.quiet, time_budget_s=cfg.time_budget_s)
+    if lossy:
+        prog.say(
+            f"note: {Path(args.output).suffix} output re-encodes every pixel, those outside the hole too; "
+            "use PNG or TIFF to keep them byte-identical"
+        )
+    metadata = None if args.strip_metadata else target.metadata
+    if metadata is not None and metadata.note:
+        prog.say(f"note: {args.target}: {metadata.note}")
     result = fill(
         target.pixels,
         mask,
@@ -125,9 +166,9 @@ def cmd_fill(args: argparse.Namespace) -> int:
         source_exifs=[s.exif for s in sources],
         progress=prog,
     )
+    write_image_atomic(args.output, result.image, metadata=metadata, quality=args.quality)
     if args.debug_dir:
         write_debug(args.debug_dir, result, mask, cfg)
-    write_image_atomic(args.output, result.image)
     r = result.report
     shares = ", ".join(
         f"{100 * f:.0f}% from reference {i}" for i, f in enumerate(r.supplied_fraction, 1) if f > 0
@@ -171,8 +212,15 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return 0
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with its usage errors as one line (``--help`` still shows the usage)."""
+
+    def error(self, message: str) -> typing.NoReturn:
+        self.exit(2, f"geofill: error: {self.prog.removeprefix('geofill ')}: {message}\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="geofill", description=__doc__.splitlines()[0])
+    parser = _Parser(prog="geofill", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("fill", help="fill the hole of TARGET with content from one or more SOURCE photos")
@@ -186,6 +234,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--sources", metavar="DIR", help="every image in DIR is a reference photo")
     p.add_argument("-o", "--output", required=True, help="output image (written atomically)")
     p.add_argument("--debug-dir", help="write matches, depth, warped source, coverage and report.json here")
+    p.add_argument(
+        "--quality",
+        type=_quality,
+        metavar="1-100",
+        help="JPEG/WebP output quality (default 95); lossy output re-encodes the pixels outside the hole",
+    )
+    p.add_argument(
+        "--strip-metadata",
+        action="store_true",
+        help="do not copy the target's EXIF (GPS included) and ICC profile into the output",
+    )
     p.add_argument("-q", "--quiet", action="store_true", help="no progress messages")
     _add_config_flags(p)
     p.set_defaults(func=cmd_fill)
@@ -201,7 +260,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_config)
 
     sub.add_parser("eval", help="evaluate methods on image pairs (see `geofill eval --help`)", add_help=False)
+
+    from .models import add_models_parser
+
+    add_models_parser(sub)
     return parser
+
+
+class _Terminated(BaseException):
+    """SIGTERM as an exception (a BaseException, like KeyboardInterrupt, so that no handler meant
+    for errors swallows it): cleanup code runs and no partial output stays behind."""
+
+
+def _on_sigterm(signum: int, frame: object) -> None:
+    raise _Terminated
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -211,6 +283,7 @@ def main(argv: list[str] | None = None) -> int:
 
         return main_eval(argv[1:])
     args = build_parser().parse_args(argv)
+    previous = signal.signal(signal.SIGTERM, _on_sigterm)
     try:
         return args.func(args)
     except GeoFillError as exc:
@@ -219,6 +292,11 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("geofill: interrupted", file=sys.stderr)
         return 130
+    except _Terminated:
+        print("geofill: terminated", file=sys.stderr)
+        return 128 + signal.SIGTERM
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 if __name__ == "__main__":

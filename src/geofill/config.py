@@ -1,19 +1,69 @@
 """One typed configuration object with the paper's defaults, dumpable/loadable as JSON.
 
 Every stage reads only its own section. Unknown keys in a JSON file are errors (a typo must not
-silently fall back to a default)."""
+silently fall back to a default). Every value is checked when a :class:`FillConfig` is built
+(from JSON, ``--set``, a preset or the Python API): its type, finiteness for every float, and the
+bounds its field declares with ``Annotated[..., Range(...)]`` / ``Length(...)``, so a bad value is
+one :class:`ConfigError` naming the key and the allowed range, never a crash deep in OpenCV."""
 
 from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import types
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 from .errors import ConfigError
+
+
+def _show(value: Any) -> str:
+    """``repr`` cut to one short line (a 400-digit integer must not flood the message)."""
+    text = repr(value)
+    return text if len(text) <= 60 else f"{text[:57]}..."
+
+
+@dataclass(frozen=True)
+class Range:
+    """Allowed interval of a numeric config value: ``[lo, hi]``, each end open where flagged."""
+
+    lo: float
+    hi: float
+    lo_open: bool = False
+    hi_open: bool = False
+
+    def check(self, value: float, where: str) -> None:
+        below = value <= self.lo if self.lo_open else value < self.lo
+        above = value >= self.hi if self.hi_open else value > self.hi
+        if below or above:
+            raise ConfigError(f"{where}: {_show(value)} is outside the allowed range {self}")
+
+    def __str__(self) -> str:
+        return f"{'(' if self.lo_open else '['}{self.lo:g}, {self.hi:g}{')' if self.hi_open else ']'}"
+
+
+@dataclass(frozen=True)
+class Length:
+    """Allowed number of items of a list value; ``min_of`` names a sibling int field that is a
+    further lower bound (per-level lists need an entry for every pyramid level)."""
+
+    lo: int
+    hi: int
+    min_of: str | None = None
+
+    def check(self, value: list, where: str, siblings: dict[str, Any]) -> None:
+        lo = self.lo
+        bound = siblings.get(self.min_of) if self.min_of else None
+        if isinstance(bound, int) and not isinstance(bound, bool):
+            lo = max(lo, bound)
+        if not lo <= len(value) <= self.hi:
+            extra = f" ({self.min_of} = {bound})" if lo != self.lo else ""
+            raise ConfigError(
+                f"{where}: {len(value)} values given, allowed {lo} to {self.hi}{extra}: {_show(list(value))}"
+            )
 
 
 @dataclass
@@ -21,11 +71,11 @@ class IntrinsicsConfig:
     """Where each image's pinhole intrinsics come from (see :mod:`geofill.intrinsics`)."""
 
     #: Explicit focal length (px of the input image) for both images; wins over EXIF and defaults.
-    focal_px: float | None = None
+    focal_px: Annotated[float, Range(0, 1e6, lo_open=True)] | None = None
     #: Full calibration [fx, fy, cx, cy] (px of the input target image); wins over everything.
-    target: list[float] | None = None
+    target: Annotated[list[Annotated[float, Range(0, 1e6, lo_open=True)]], Length(4, 4)] | None = None
     #: Full calibration [fx, fy, cx, cy] (px of the input source image); wins over everything.
-    source: list[float] | None = None
+    source: Annotated[list[Annotated[float, Range(0, 1e6, lo_open=True)]], Length(4, 4)] | None = None
     #: Use the EXIF focal length when present: FocalLengthIn35mmFilm, else FocalLength with the
     #: focal-plane resolution (see :mod:`geofill.intrinsics`).
     use_exif: bool = True
@@ -42,38 +92,38 @@ class IntrinsicsConfig:
     #: ``no``: each pair on its own.
     shared_camera: Literal["auto", "yes", "no"] = "auto"
     #: Prior 1-sigma of log(focal) for the default focal guess (1.0: a factor of e either way).
-    prior_sigma_default: float = 1.0
+    prior_sigma_default: Annotated[float, Range(0, 10, lo_open=True)] = 1.0
     #: Prior 1-sigma of log(focal) for an EXIF focal (phones' EXIF is usually right to a few %).
     #: Below ``model_error``, so by default the pair cannot move an EXIF focal: the estimate checks
     #: it (report) and takes over only where EXIF is absent, or trusted less than this.
-    prior_sigma_exif: float = 0.05
+    prior_sigma_exif: Annotated[float, Range(0, 10, lo_open=True)] = 0.05
     #: Focal scales (relative to the prior) searched: log grid from ``search_min_scale`` to
     #: ``search_max_scale`` with ``search_steps`` points, then refined around the best.
-    search_min_scale: float = 0.33
-    search_max_scale: float = 3.0
-    search_steps: int = 13
+    search_min_scale: Annotated[float, Range(0.01, 1)] = 0.33
+    search_max_scale: Annotated[float, Range(1, 100)] = 3.0
+    search_steps: Annotated[int, Range(2, 200)] = 13
     #: The search reads its Sampson cost as a Gaussian likelihood of the focal with the information
     #: divided by this: SIFT positions carry correlated errors (localisation bias), so the formal
     #: likelihood is overconfident (25: the standard deviation x5).
-    search_variance_inflation: float = 25.0
+    search_variance_inflation: Annotated[float, Range(1, 1e6)] = 25.0
     #: Relative focal error (1 sigma) the pair can never beat: what lens distortion, an off-centre
     #: principal point or a rolling shutter leave. Estimates on the GT pairs were 0-16 % off where
     #: more than 70 matches (benchmarks/focal_bench.py).
-    model_error: float = 0.1
+    model_error: Annotated[float, Range(0, 1)] = 0.1
     #: Matches used by the search at most (evenly subsampled, for speed).
-    search_max_matches: int = 2000
+    search_max_matches: Annotated[int, Range(8, 100_000)] = 2000
     #: The estimate is used only if its uncertainty (1-sigma of log focal) is at most this and at
     #: most ``max_uncertainty_ratio`` times the prior's; otherwise the focal is unobservable from
     #: this pair (e.g. parallel optical axes: stereo, pure sideways or forward motion; few matches)
     #: and the prior is kept, with the reason in the report. 0.25 turned away the two estimates
     #: that were 32 % off or unverifiable on the DEV pairs (+-44 %, +-32 %).
-    max_uncertainty: float = 0.25
-    max_uncertainty_ratio: float = 0.7
+    max_uncertainty: Annotated[float, Range(0, 10, lo_open=True)] = 0.25
+    max_uncertainty_ratio: Annotated[float, Range(0, 10, lo_open=True)] = 0.7
     #: A pair whose best focal is further than this many standard deviations from the prior
     #: contradicts it: the prior is kept (an EXIF focal wins over an estimate it rules out).
-    max_prior_conflict: float = 3.0
+    max_prior_conflict: Annotated[float, Range(0, 100, lo_open=True)] = 3.0
     #: ``bougnoux``: bootstrap resamples of the matches that measure the formula's sensitivity.
-    bougnoux_resamples: int = 32
+    bougnoux_resamples: Annotated[int, Range(1, 1000)] = 32
 
 
 @dataclass
@@ -82,22 +132,22 @@ class MatchingConfig:
 
     #: SIFT keypoints per image (strongest kept); 0 = no limit. 4000 gave the same pose accuracy
     #: as 8000 on the GT-pose pairs (median 0.18 deg / 0.95 deg) at half the matching time.
-    max_features: int = 4000
+    max_features: Annotated[int, Range(0, 1_000_000)] = 4000
     #: Lowe's ratio test threshold.
-    ratio: float = 0.8
+    ratio: Annotated[float, Range(0.0, 1.0)] = 0.8
     #: Keep only matches that are each other's nearest neighbour.
     mutual: bool = True
     #: Target keypoints closer than this to the hole (px at a 1280-px long side, scaled) are dropped:
     #: their descriptors see the object being removed.
-    hole_margin_px: float = 8.0
+    hole_margin_px: Annotated[float, Range(0.0, 1000.0)] = 8.0
     #: Robust estimator for the epipolar geometry.
     robust_method: Literal["magsac", "ransac", "lmeds"] = "magsac"
     #: Inlier threshold of every robust fit on the matches (F, E, the rotation-only homography at
     #: twice it, the focal search): px at a 1280-px long side, scaled with the working image but
     #: never below half of it (:meth:`ransac_px`).
-    ransac_threshold_px: float = 1.0
-    ransac_confidence: float = 0.9999
-    ransac_max_iters: int = 10000
+    ransac_threshold_px: Annotated[float, Range(1e-3, 100.0)] = 1.0
+    ransac_confidence: Annotated[float, Range(0.0, 1.0)] = 0.9999
+    ransac_max_iters: Annotated[int, Range(1, 1_000_000)] = 10000
     #: The escalation ladder (:mod:`geofill.matching.ladder`) climbs at most to this rung:
     #: ``sift`` -> ``loose`` (more keypoints, looser ratio, stricter verification) -> ``asift``
     #: (affine-simulated SIFT) -> ``guided`` (matching along the epipolar lines of the best F so
@@ -106,66 +156,36 @@ class MatchingConfig:
     #: The ladder starts no new rung after this many seconds (ASIFT also stops between its
     #: simulated views). 30 s: room for SIFT, the loose rung and most of ASIFT's views at the
     #: working size on 2 cores, under the depth and optimisation stages' time of a wide pair.
-    time_budget_s: float = 30.0
+    time_budget_s: Annotated[float, Range(0.0, 86_400.0)] = 30.0
     #: A rung's geometry verifies with at least this many F inliers ...
-    min_verified: int = 30
+    min_verified: Annotated[int, Range(0, 1_000_000)] = 30
     #: ... and this fraction of the hole within ``hole_support_radius_px`` (px at a 1280-px long
     #: side, scaled) of an inlier; otherwise the ladder climbs.
-    min_hole_support: float = 0.1
-    hole_support_radius_px: float = 200.0
+    min_hole_support: Annotated[float, Range(0.0, 1.0)] = 0.1
+    hole_support_radius_px: Annotated[float, Range(1.0, 10_000.0)] = 200.0
     #: Inlier threshold of the rungs above ``sift``, as a multiple of ``ransac_threshold_px``:
     #: looser matching lets more outliers in, so their geometry is verified more strictly.
-    strict_threshold_scale: float = 0.75
+    strict_threshold_scale: Annotated[float, Range(0.1, 10.0)] = 0.75
     #: ``loose`` rung: SIFT keypoints per image and ratio-test threshold (no mutual check).
-    loose_max_features: int = 8000
-    loose_ratio: float = 0.9
+    loose_max_features: Annotated[int, Range(0, 1_000_000)] = 8000
+    loose_ratio: Annotated[float, Range(0.0, 1.0)] = 0.9
     #: ``asift`` rung: tilts sqrt(2)^k for k < ``asift_max_tilt`` (4: up to 2.8, about 70 deg of
     #: obliquity), detected on the working image downsized to a long side of at most
     #: ``asift_max_side`` px (ASIFT's cost grows with the area times the number of views),
     #: ``asift_features_per_view`` SIFT keypoints per simulated view, the ``asift_max_features``
     #: strongest of all views kept per image (the matching cost grows with their product), ratio
     #: threshold.
-    asift_max_tilt: int = 4
-    asift_max_side: int = 800
-    asift_features_per_view: int = 1000
-    asift_max_features: int = 8000
-    asift_ratio: float = 0.85
+    asift_max_tilt: Annotated[int, Range(1, 8)] = 4
+    asift_max_side: Annotated[int, Range(64, 8192)] = 800
+    asift_features_per_view: Annotated[int, Range(1, 100_000)] = 1000
+    asift_max_features: Annotated[int, Range(1, 100_000)] = 8000
+    asift_ratio: Annotated[float, Range(0.0, 1.0)] = 0.85
     #: ``guided`` rung: half-width (px at the working resolution) of the epipolar band a match
     #: must fall in, and the ratio threshold between the two best candidates inside it. Not looser
     #: than plain SIFT's: a wrong match on its epipolar line passes F verification by construction
     #: (0.9 gave 142 verified matches on a rendered 33-degree orbit, 77 % right; 0.8: 93, 96 %).
-    guided_band_px: float = 3.0
-    guided_ratio: float = 0.8
-
-    def __post_init__(self) -> None:
-        # OpenCV and numpy take these unchecked (a huge keypoint count or iteration budget fails
-        # deep inside them): refuse what is out of range here, naming the key.
-        ranges = {
-            "max_features": (0, 1_000_000),
-            "loose_max_features": (0, 1_000_000),
-            "asift_features_per_view": (1, 100_000),
-            "asift_max_features": (1, 100_000),
-            "ransac_max_iters": (1, 1_000_000),
-            "asift_max_tilt": (1, 8),
-            "asift_max_side": (64, 8192),
-            "min_verified": (0, 1_000_000),
-            "ratio": (0.0, 1.0),
-            "loose_ratio": (0.0, 1.0),
-            "asift_ratio": (0.0, 1.0),
-            "guided_ratio": (0.0, 1.0),
-            "ransac_confidence": (0.0, 1.0),
-            "min_hole_support": (0.0, 1.0),
-            "hole_margin_px": (0.0, 1000.0),
-            "ransac_threshold_px": (1e-3, 100.0),
-            "strict_threshold_scale": (0.1, 10.0),
-            "hole_support_radius_px": (1.0, 10_000.0),
-            "guided_band_px": (0.1, 100.0),
-            "time_budget_s": (0.0, 86_400.0),
-        }
-        for key, (lo, hi) in ranges.items():
-            value = getattr(self, key)
-            if not lo <= value <= hi:  # also False for NaN
-                raise ConfigError(f"matching.{key}: {value!r} is outside [{lo}, {hi}]")
+    guided_band_px: Annotated[float, Range(0.1, 100.0)] = 3.0
+    guided_ratio: Annotated[float, Range(0.0, 1.0)] = 0.8
 
     def ransac_px(self, px_scale: float) -> float:
         """The inlier threshold in pixels of an image ``px_scale`` times the 1280-px reference."""
@@ -177,13 +197,13 @@ class GeometryConfig:
     """Relative pose, triangulation, depth scale/offset fit and degeneracy checks."""
 
     #: Fewer verified matches than this is a degenerate pair (single-image fallback).
-    min_inliers: int = 20
+    min_inliers: Annotated[int, Range(5, 1_000_000)] = 20
     #: Median triangulation angle (deg) under which the pair is treated as near-pure rotation.
-    min_median_parallax_deg: float = 0.3
+    min_median_parallax_deg: Annotated[float, Range(0, 90)] = 0.3
     #: Triangulated points with a reprojection error above this (px) are discarded.
-    max_reprojection_px: float = 4.0
+    max_reprojection_px: Annotated[float, Range(0, 1000, lo_open=True)] = 4.0
     #: Triangulated points with a ray angle below this (deg) carry no depth information.
-    min_point_parallax_deg: float = 0.05
+    min_point_parallax_deg: Annotated[float, Range(0, 90)] = 0.05
     #: Least squares or a robust (Huber, IRLS) variant for the depth scale/offset fit.
     depth_fit: Literal["lstsq", "robust"] = "robust"
     #: Space of the affine depth fit. Inverse depth measured better on the GT-depth pairs
@@ -206,29 +226,30 @@ class DepthConfig:
     #: ``onnx``/``fused``: explicit ONNX file of ``model``; wins over its environment variable, the
     #: cache and the hub (CLI ``--depth-model``).
     model_path: str | None = None
-    #: Allow downloading missing weights from the hub (``HF_HUB_OFFLINE=1`` forbids it too).
-    download: bool = True
+    #: Allow downloading missing weights from the hub during a fill (``HF_HUB_OFFLINE=1`` forbids it
+    #: too). Off by default: a fill never reaches for the network; ``geofill models download`` does.
+    download: bool = False
     #: ``file`` backend: path of a .npy / 16-bit PNG / TIFF / EXR map the size of the source.
     file_path: str | None = None
     #: ``file`` backend: what the values are.
     file_kind: Literal["depth", "inverse_depth", "disparity"] = "depth"
     #: ``file`` backend: multiply stored values by this to get the stated kind (e.g. 0.001 for mm PNG).
-    file_scale: float = 1.0
+    file_scale: Annotated[float, Range(0, 1e9, lo_open=True)] = 1.0
     #: ``file`` backend: True when the map is metric (pose translation gets its scale from it).
     file_metric: bool = False
     #: ``sparse`` backend: working long side (px) of the edge-aware interpolation.
-    sparse_max_side: int = 640
+    sparse_max_side: Annotated[int, Range(16, 8192)] = 640
     #: ``stereo``: long side (px) of the plane sweep and of its completion.
-    stereo_max_side: int = 448
+    stereo_max_side: Annotated[int, Range(32, 4096)] = 448
     #: ``stereo``: most depth hypotheses (planes uniform in inverse depth); fewer are used when the
     #: sweep's displacement range is shorter (about one plane per pixel of displacement).
-    stereo_max_planes: int = 96
+    stereo_max_planes: Annotated[int, Range(2, 1024)] = 96
     #: ``stereo``: side (px at the sweep's resolution) of the NCC window.
-    stereo_patch_px: int = 7
+    stereo_patch_px: Annotated[int, Range(3, 63)] = 7
     #: ``stereo``: radius (px) of the guided filter that aggregates each cost slice; 0 = off.
-    stereo_aggregation_radius: int = 8
+    stereo_aggregation_radius: Annotated[int, Range(0, 64)] = 8
     #: ``stereo``: pixels under this confidence (0-1) are re-estimated by edge-aware completion.
-    stereo_min_confidence: float = 0.5
+    stereo_min_confidence: Annotated[float, Range(0, 1)] = 0.5
 
 
 @dataclass
@@ -242,9 +263,9 @@ class OptimizeConfig:
     #: ``fast``: Levenberg-Marquardt on the same objective; ``paper``: DiffGrad, as published.
     solver: Literal["fast", "paper"] = "fast"
     #: Weights of L_photo, L_feat and L_negD (paper: 10, 10, 0.5).
-    lambda_photo: float = 10.0
-    lambda_feat: float = 10.0
-    lambda_negd: float = 0.5
+    lambda_photo: Annotated[float, Range(0, 1e6)] = 10.0
+    lambda_feat: Annotated[float, Range(0, 1e6)] = 10.0
+    lambda_negd: Annotated[float, Range(0, 1e6)] = 0.5
     #: Loss switches (the paper's loss ablation).
     use_photo: bool = True
     use_feat: bool = True
@@ -253,52 +274,58 @@ class OptimizeConfig:
     use_hole_weight: bool = True
     use_edge_weight: bool = True
     #: sigma of the hole-distance weight W_h = exp(-d^2 / 2 sigma^2) (paper: 192 px at 1280x720).
-    hole_sigma_px: float = 192.0
+    hole_sigma_px: Annotated[float, Range(0, 1e5, lo_open=True)] = 192.0
     #: Gaussian blur kernel sizes before each of the Canny edge maps of W_e (the paper uses 4 maps
     #: and gives no sizes; odd after scaling).
-    edge_blur_kernels: list[int] = field(default_factory=lambda: [3, 7, 15, 31])
+    edge_blur_kernels: Annotated[list[Annotated[int, Range(1, 255)]], Length(1, 16)] = field(
+        default_factory=lambda: [3, 7, 15, 31]
+    )
     #: Canny hysteresis thresholds per blurred image (the paper gives none): the high one is this
     #: percentile of its gradient magnitude over known pixels, the low one ``canny_low_ratio`` times it
     #: (fixed thresholds found 0.4 % to 34 % edge pixels on the dev pairs, whatever their contrast).
-    canny_high_percentile: float = 90.0
-    canny_low_ratio: float = 0.4
+    canny_high_percentile: Annotated[float, Range(0, 100)] = 90.0
+    canny_low_ratio: Annotated[float, Range(0, 1)] = 0.4
     #: Square dilation of each edge map (paper: kernel size 4).
-    edge_dilation_px: int = 4
+    edge_dilation_px: Annotated[int, Range(0, 64)] = 4
     #: Barron's general robust loss for L_feat: shape alpha and scale c (paper: -2 and 10 px).
-    barron_alpha: float = -2.0
-    barron_c_px: float = 10.0
+    barron_alpha: Annotated[float, Range(-1000, 2)] = -2.0
+    barron_c_px: Annotated[float, Range(0, 1e4, lo_open=True)] = 10.0
     #: Gaussian pyramid levels, optimised coarse to fine (paper: 4).
-    pyramid_levels: int = 4
+    pyramid_levels: Annotated[int, Range(1, 8)] = 4
     #: Long side (px) of the finest level; the working images are downsized to it when larger.
-    max_side: int = 1280
+    max_side: Annotated[int, Range(32, 16384)] = 1280
     #: ``paper`` solver: DiffGrad's constant learning rate (paper: 1e-2).
-    paper_lr: float = 1e-2
+    paper_lr: Annotated[float, Range(0, 10, lo_open=True)] = 1e-2
     #: ``paper`` solver: cumulative iteration limits per level, coarse to fine (paper: 4k, 7k, 9k, 10k).
-    paper_iterations: list[int] = field(default_factory=lambda: [4000, 7000, 9000, 10000])
+    paper_iterations: Annotated[
+        list[Annotated[int, Range(0, 1_000_000)]], Length(1, 8, min_of="pyramid_levels")
+    ] = field(default_factory=lambda: [4000, 7000, 9000, 10000])
     #: ``paper`` solver: convergence threshold eps_opt and window m of the supplement's test.
-    paper_eps: float = 1e-6
-    paper_window: int = 10
+    paper_eps: Annotated[float, Range(0, 1)] = 1e-6
+    paper_window: Annotated[int, Range(1, 100_000)] = 10
     #: ``fast`` solver: Levenberg-Marquardt iterations per level, coarse to fine.
-    fast_iterations: list[int] = field(default_factory=lambda: [30, 20, 12, 8])
+    fast_iterations: Annotated[
+        list[Annotated[int, Range(0, 10_000)]], Length(1, 8, min_of="pyramid_levels")
+    ] = field(default_factory=lambda: [30, 20, 12, 8])
     #: ``fast`` solver: a level stops when an accepted step lowers the objective by less than this
     #: (relative).
-    fast_ftol: float = 1e-6
+    fast_ftol: Annotated[float, Range(0, 1)] = 1e-6
     #: ``fast`` solver: largest step, as the 95th percentile of the motion it gives the reprojected
     #: points, in px of the pyramid level being solved (a trust region).
-    fast_step_px: float = 4.0
+    fast_step_px: Annotated[float, Range(0, 1000, lo_open=True)] = 4.0
     #: ``fast`` solver: photometric residuals only on source pixels whose reprojection lands where W
     #: (max-filtered by ``fast_margin_px``) is at least this fraction of its maximum; 0 = all pixels.
-    fast_min_weight: float = 1e-3
+    fast_min_weight: Annotated[float, Range(0, 1)] = 1e-3
     #: ``fast`` solver: margin (px at each level) around the weighted area kept in that set.
-    fast_margin_px: int = 1
+    fast_margin_px: Annotated[int, Range(0, 64)] = 1
     #: torch intra-op threads while optimising (restored afterwards). The work is many small
     #: memory-bound operations: 2 threads were 13x slower than 1 with the 2 cores shared by other jobs.
-    threads: int = 1
+    threads: Annotated[int, Range(1, 256)] = 1
     #: Refine a focal scale shared by both images as an extra parameter (issue 7); off = the paper.
     refine_focal: bool = False
     #: Weak prior on the log focal scale phi: ``w * l0 * phi^2`` with l0 the initial objective, so a
     #: focal change by a factor e costs ``w`` times the initial objective.
-    focal_prior_weight: float = 0.01
+    focal_prior_weight: Annotated[float, Range(0, 1e6)] = 0.01
 
 
 @dataclass
@@ -306,9 +333,9 @@ class RenderConfig:
     """Rendering the source into the target view."""
 
     #: Mesh edges with 2|d_i - d_j| / (d_i + d_j) above this are cut (paper: 4e-2).
-    edge_threshold: float = 0.04
+    edge_threshold: Annotated[float, Range(0, 10, lo_open=True)] = 0.04
     #: A hole the source covers less than this fraction of falls back to single-image inpainting.
-    min_hole_coverage: float = 0.05
+    min_hole_coverage: Annotated[float, Range(0, 1)] = 0.05
 
 
 @dataclass
@@ -325,28 +352,28 @@ class RefineConfig:
     #: carried into the hole by membrane interpolation and composed with the correspondence field.
     flow: bool = True
     #: Width (px) of the known ring around the hole that refinement measures on.
-    band_px: float = 32.0
+    band_px: Annotated[float, Range(1, 1024)] = 32.0
     #: Long side (px) of the image-equivalent resolution at which flow and colour fields are
     #: estimated; they are applied at the input resolution.
-    max_side: int = 1280
+    max_side: Annotated[int, Range(32, 16384)] = 1280
     #: DIS preset (speed/accuracy).
     flow_preset: Literal["ultrafast", "fast", "medium"] = "fast"
     #: Band flow vectors longer than this (px) or failing the forward-backward check by more than
     #: ``flow_consistency_px`` are not trusted.
-    flow_max_px: float = 24.0
-    flow_consistency_px: float = 1.0
+    flow_max_px: Annotated[float, Range(0, 1e4, lo_open=True)] = 24.0
+    flow_consistency_px: Annotated[float, Range(0, 1e3, lo_open=True)] = 1.0
     #: Gaussian scale (px) of the local statistics of the "gain" colour model.
-    gain_sigma_px: float = 8.0
+    gain_sigma_px: Annotated[float, Range(0, 1000, lo_open=True)] = 8.0
     #: Regulariser of the local gain (intensity variance): where the render's local variance is
     #: below it (flat regions, where gain and offset cannot be told apart) the gain tends to the
     #: global one and the offset does the work.
-    gain_eps: float = 0.0005
+    gain_eps: Annotated[float, Range(0, 1, lo_open=True)] = 0.0005
     #: Gaussian scale (px) of the smoothing of the target - render difference on the band before
     #: the "poisson" solve (0: exact Poisson blend; larger: fewer streaks from misaligned texture).
-    poisson_smooth_px: float = 4.0
+    poisson_smooth_px: Annotated[float, Range(0, 1000)] = 4.0
     #: Width (px) of the soft blend (M_single) from the render into single-image inpainting where the
     #: render has no data; 0 pastes with hard edges.
-    feather_px: float = 4.0
+    feather_px: Annotated[float, Range(0, 1000)] = 4.0
 
 
 @dataclass
@@ -355,9 +382,12 @@ class InpaintConfig:
 
     #: "telea"/"ns": OpenCV (no weights); "lama": LaMa through ONNX Runtime; "auto": LaMa when its
     #: model resolves (path, $GEOFILL_LAMA_MODEL, cache, hub), else Telea (the reason is reported).
-    method: Literal["telea", "ns", "lama", "auto"] = "auto"
+    method: Literal["telea", "ns", "patchmatch", "lama", "auto"] = "auto"
     #: OpenCV inpainting neighbourhood radius (px).
-    radius_px: float = 5.0
+    radius_px: Annotated[float, Range(0, 100, lo_open=True)] = 5.0
+    #: "patchmatch": radius (px) of the compared patches, (2r + 1)^2 pixels (PyPatchMatch's examples
+    #: use 3; larger follows larger structures, much slower).
+    patch_radius_px: Annotated[int, Range(1, 15)] = 3
     #: Explicit LaMa ONNX file (e.g. Carve/LaMa-ONNX's lama.onnx); wins over the environment
     #: variable, the cache and the hub.
     lama_model: str | None = None
@@ -377,28 +407,28 @@ class FusionConfig:
     #: 7 multi-reference DEV sets feather gave the best mean hole PSNR (benchmarks: docs/results.md).
     seams: Literal["graphcut", "feather", "blend"] = "feather"
     #: ``blend``: the references covering a pixel averaged with weights score ** blend_power.
-    blend_power: float = 2.0
+    blend_power: Annotated[float, Range(0, 16)] = 2.0
     #: Width (px) of the blend across the boundary between two references' regions.
-    feather_px: float = 6.0
+    feather_px: Annotated[float, Range(0, 1000)] = 6.0
     #: Agreement with the target: the render's error (mean absolute difference, 0-255) on the known
     #: ring around the hole after colour correction, spread into the hole with a Gaussian of
     #: ``band_sigma_px`` (so each part of the hole is judged by the ring next to it); a
     #: reference's score halves at an error of ``band_error_scale``.
-    band_error_scale: float = 2.0
-    band_sigma_px: float = 16.0
+    band_error_scale: Annotated[float, Range(0, 255, lo_open=True)] = 2.0
+    band_sigma_px: Annotated[float, Range(0, 1000, lo_open=True)] = 16.0
     #: Where three or more references cover a pixel, a reference's score also halves at this
     #: distance (0-255) from their per-pixel median: a misaligned reference disagrees with the others.
-    consensus_scale: float = 16.0
+    consensus_scale: Annotated[float, Range(0, 255, lo_open=True)] = 16.0
     #: Distance (px) from a mesh cut or the render's border below which a pixel's score falls.
-    edge_distance_px: float = 16.0
+    edge_distance_px: Annotated[float, Range(0, 1000)] = 16.0
     #: Viewing-direction change (deg, target ray vs. source ray at the surface) at which a
     #: reference's score halves.
-    angle_scale_deg: float = 30.0
+    angle_scale_deg: Annotated[float, Range(0, 180, lo_open=True)] = 30.0
     #: A reference's candidate region keeps the pixels whose score is at least this fraction of
     #: the best reference's there (the seam is searched only inside such overlaps).
-    candidate_ratio: float = 0.5
+    candidate_ratio: Annotated[float, Range(0, 1)] = 0.5
     #: References processed at once (threads); 1 runs them one after the other.
-    parallel: int = 1
+    parallel: Annotated[int, Range(1, 64)] = 1
 
 
 @dataclass
@@ -416,13 +446,22 @@ class FillConfig:
     fusion: FusionConfig = field(default_factory=FusionConfig)
     #: Geometry (matching, pose, depth, optimisation) runs with the long side capped at this (px);
     #: rendering and compositing run at the input resolution.
-    working_max_side: int = 1280
+    working_max_side: Annotated[int, Range(64, 16384)] = 1280
     #: Inputs with more pixels than this are refused (decompression-bomb guard).
-    max_pixels: int = 60_000_000
+    max_pixels: Annotated[int, Range(4096, 1_000_000_000)] = 60_000_000
     #: Masks covering more than this fraction of the target are refused.
-    max_mask_fraction: float = 0.9
+    max_mask_fraction: Annotated[float, Range(0, 1, lo_open=True)] = 0.9
     #: Images with a side under this (px) are refused.
-    min_side_px: int = 64
+    min_side_px: Annotated[int, Range(16, 4096)] = 64
+    #: Wall-clock budget (s) of one whole fill, checked as each stage starts (geofill.progress);
+    #: generous: the paper solver alone can take an hour on a CPU.
+    time_budget_s: Annotated[float, Range(1, 1e6)] = 7200.0
+
+    def __post_init__(self) -> None:
+        # Sections built directly through the Python API are checked like those read from JSON.
+        checked = _build(FillConfig, dataclasses.asdict(self), "config", construct=False)
+        for name, value in checked.items():
+            setattr(self, name, value)
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -439,12 +478,20 @@ class FillConfig:
 
     @classmethod
     def from_json(cls, path: str | Path) -> FillConfig:
+        p = Path(path)
         try:
-            data = json.loads(Path(path).read_text())
-        except FileNotFoundError as exc:
-            raise ConfigError(f"config file not found: {path}") from exc
-        except json.JSONDecodeError as exc:
+            if not p.is_file():
+                what = "is a directory" if p.is_dir() else "not found" if not p.exists() else "not a file"
+                raise ConfigError(f"config file {path}: {what}")
+            data = json.loads(p.read_text(encoding="utf-8"))
+        except UnicodeDecodeError as exc:
+            raise ConfigError(
+                f"config file {path}: not UTF-8 text ({exc.reason} at byte {exc.start})"
+            ) from exc
+        except (json.JSONDecodeError, RecursionError) as exc:
             raise ConfigError(f"config file {path} is not valid JSON: {exc}") from exc
+        except OSError as exc:  # unreadable, or a name the file system refuses (too long)
+            raise ConfigError(f"config file {path}: cannot read ({exc.strerror or exc})") from exc
         return cls.from_dict(data)
 
     def preset(self, name: str) -> FillConfig:
@@ -497,63 +544,89 @@ PRESETS: dict[str, dict[str, Any]] = {
     # Several references: graph-cut seams between the per-pixel winners, or a score-weighted average.
     "graphcut": {"fusion.seams": "graphcut"},
     "blend": {"fusion.seams": "blend"},
+    # Single-image inpainting of what the references do not cover: Telea or PatchMatch.
+    "telea": {"inpaint.method": "telea"},
+    "patchmatch": {"inpaint.method": "patchmatch"},
 }
 
 
-def _build(cls: type, data: Any, where: str):
+def _build(cls: type, data: Any, where: str, *, construct: bool = True):
+    """``cls`` from a JSON-like dict, every value checked (or, with ``construct=False``, the checked
+    keyword arguments)."""
+    if dataclasses.is_dataclass(data) and not isinstance(data, type):
+        data = dataclasses.asdict(data)
     if not isinstance(data, dict):
         raise ConfigError(f"{where}: expected an object, got {type(data).__name__}")
-    hints = typing.get_type_hints(cls)
-    names = {f.name for f in dataclasses.fields(cls)}
+    hints = typing.get_type_hints(cls, include_extras=True)
+    fields = dataclasses.fields(cls)
+    names = {f.name for f in fields}
     unknown = set(data) - names
     if unknown:
         raise ConfigError(f"{where}: unknown key(s) {sorted(unknown)}; known: {sorted(names)}")
-    kwargs = {}
-    for name, value in data.items():
-        kwargs[name] = _coerce(hints[name], value, f"{where}.{name}")
-    return cls(**kwargs)
+    defaults = {
+        f.name: f.default if f.default is not dataclasses.MISSING else f.default_factory()
+        for f in fields
+        if f.default is not dataclasses.MISSING or f.default_factory is not dataclasses.MISSING
+    }
+    siblings = defaults | data
+    kwargs = {name: _coerce(hints[name], value, f"{where}.{name}", siblings) for name, value in data.items()}
+    return cls(**kwargs) if construct else kwargs
 
 
-def _coerce(tp: Any, value: Any, where: str) -> Any:
+def _coerce(tp: Any, value: Any, where: str, siblings: dict[str, Any] | None = None) -> Any:
+    """``value`` checked against the type hint ``tp`` (and its ``Range``/``Length`` bounds)."""
     if dataclasses.is_dataclass(tp):
         return _build(tp, value, where)
     origin = typing.get_origin(tp)
     args = typing.get_args(tp)
+    if origin is Annotated:
+        value = _coerce(args[0], value, where, siblings)
+        for bound in tp.__metadata__:
+            if isinstance(bound, Length):
+                bound.check(value, where, siblings or {})
+            else:
+                bound.check(value, where)
+        return value
     if origin is Literal:
         if value not in args:
-            raise ConfigError(f"{where}: {value!r} is not one of {list(args)}")
+            raise ConfigError(f"{where}: {_show(value)} is not one of {list(args)}")
         return value
     if origin in (typing.Union, types.UnionType):
         if value is None and type(None) in args:
             return None
-        for arg in args:
-            if arg is type(None):
-                continue
+        problems = []
+        for arg in (a for a in args if a is not type(None)):
             try:
-                return _coerce(arg, value, where)
-            except ConfigError:
-                continue
-        raise ConfigError(f"{where}: {value!r} does not fit {tp}")
+                return _coerce(arg, value, where, siblings)
+            except ConfigError as exc:
+                problems.append(exc)
+        raise problems[0] if len(problems) == 1 else ConfigError(f"{where}: {_show(value)} does not fit {tp}")
     if origin in (list, tuple):
         if not isinstance(value, list | tuple):
-            raise ConfigError(f"{where}: expected a list, got {value!r}")
+            raise ConfigError(f"{where}: expected a list, got {_show(value)}")
         (inner,) = args[:1] or (Any,)
-        return origin(_coerce(inner, v, where) for v in value)
+        return origin(_coerce(inner, v, f"{where}[{i}]") for i, v in enumerate(value))
     if tp is bool:
         if not isinstance(value, bool):
-            raise ConfigError(f"{where}: expected true/false, got {value!r}")
+            raise ConfigError(f"{where}: expected true/false, got {_show(value)}")
         return value
     if tp is int:
         if isinstance(value, bool) or not isinstance(value, int):
-            raise ConfigError(f"{where}: expected an integer, got {value!r}")
+            raise ConfigError(f"{where}: expected an integer, got {_show(value)}")
         return value
     if tp is float:
         if isinstance(value, bool) or not isinstance(value, int | float):
-            raise ConfigError(f"{where}: expected a number, got {value!r}")
-        return float(value)
+            raise ConfigError(f"{where}: expected a number, got {_show(value)}")
+        try:
+            number = float(value)
+        except OverflowError:  # an int beyond float's range
+            number = math.inf
+        if not math.isfinite(number):
+            raise ConfigError(f"{where}: expected a finite number, got {_show(value)}")
+        return number
     if tp is str:
         if not isinstance(value, str):
-            raise ConfigError(f"{where}: expected a string, got {value!r}")
+            raise ConfigError(f"{where}: expected a string, got {_show(value)}")
         return value
     return value
 
@@ -570,4 +643,6 @@ def parse_overrides(items: list[str] | None) -> dict[str, Any]:
             overrides[key.strip()] = json.loads(raw)
         except json.JSONDecodeError:
             overrides[key.strip()] = raw
+        except RecursionError as exc:
+            raise ConfigError(f"--set {key.strip()}: value nested too deeply") from exc
     return overrides

@@ -70,6 +70,16 @@ class ConfigError(GeoFillError):
     exit_code = 3
 
 
+class MissingExtraError(ConfigError):
+    """The configuration asks for an optional part whose extra is not installed."""
+
+
+class TimeBudgetError(GeoFillError):
+    """The fill ran past its time budget (``time_budget_s``)."""
+
+    exit_code = 6
+
+
 class OutputError(GeoFillError):
     """An output path cannot be written (unsupported extension, missing or read-only folder, I/O error)."""
 

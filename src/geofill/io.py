@@ -7,7 +7,8 @@ with the file (or array) it is about.
 
 Decoders: Pillow opens every image lazily, so its header gives the size for the pixel-limit check
 before any pixel is decoded, and its EXIF gives the orientation and the lens tags. Pillow also
-decodes the 8-bit images. It reduces 16-bit colour to 8 bits by keeping the high byte (51200 ->
+decodes the 8-bit images, except YCbCr and grey JPEGs: simplejpeg decodes those strictly (a scan
+cut short is an error, not grey pixels). It reduces 16-bit colour to 8 bits by keeping the high byte (51200 ->
 200 where round(51200 / 257) = 199 is right) and cannot decode float or 32-bit TIFF samples, so
 16-bit PNGs go through OpenCV (libpng keeps all 16 bits) and deeper-than-8-bit TIFFs through
 tifffile.
@@ -18,6 +19,7 @@ from __future__ import annotations
 import contextlib
 import math
 import os
+import stat
 import struct
 import uuid
 import warnings
@@ -55,11 +57,14 @@ from .errors import (
     OutputError,
     UnreadableFileError,
 )
+from .extras import require
 
 #: Pillow formats accepted as input. Restricting ``Image.open`` to these keeps Pillow's other
 #: plugins (EPS runs Ghostscript, for one) away from user files. The JPEG opener also returns the
 #: multi-picture JPEGs many cameras write (format "MPO").
 INPUT_FORMATS = ("PNG", "JPEG", "WEBP", "TIFF")
+#: ISO-BMFF major brands of HEIF images (HEIC from phones, plain HEIF).
+_HEIF_BRANDS = {b"heic", b"heix", b"hevc", b"hevx", b"heim", b"heis", b"mif1", b"msf1"}
 #: Mask pixels at or above this 8-bit value are hole (IOPaint's convention).
 MASK_THRESHOLD = 127
 
@@ -107,6 +112,17 @@ class ExifCamera:
         return (self.body, self.focal_mm) if self.body else None
 
 
+@dataclass(frozen=True)
+class ImageMetadata:
+    """What an output carries over from its input file: the EXIF block (orientation reset to 1,
+    since the pixels are delivered upright) and the ICC colour profile; None where absent.
+    ``note`` says why EXIF present in the file could not be carried (never dropped silently)."""
+
+    exif: bytes | None = None
+    icc_profile: bytes | None = None
+    note: str | None = None
+
+
 @dataclass
 class LoadedImage:
     """An input image as the pipeline sees it."""
@@ -114,6 +130,7 @@ class LoadedImage:
     pixels: np.ndarray  # HxWx3 uint8 RGB, EXIF orientation applied
     path: str
     exif: ExifCamera = field(default_factory=ExifCamera)
+    metadata: ImageMetadata = field(default_factory=ImageMetadata)
 
 
 # --------------------------------------------------------------------------------------------
@@ -121,7 +138,7 @@ class LoadedImage:
 
 
 #: File name extensions of the image formats geofill reads (``--sources DIR`` picks these).
-IMAGE_SUFFIXES = frozenset({".png", ".jpg", ".jpeg", ".webp", ".tif", ".tiff"})
+IMAGE_SUFFIXES = frozenset({".png", ".jpg", ".jpeg", ".webp", ".tif", ".tiff", ".heic", ".heif"})
 
 
 def read_image(path: str | os.PathLike, *, max_pixels: int = 60_000_000, min_side: int = 64) -> LoadedImage:
@@ -134,9 +151,9 @@ def read_image(path: str | os.PathLike, *, max_pixels: int = 60_000_000, min_sid
 
     Raises MissingFileError, UnreadableFileError, CorruptImageError, ImageTooLargeError,
     ImageTooSmallError."""
-    native, orientation, camera = _read_raster(path, max_pixels=max_pixels, min_side=min_side)
+    native, orientation, camera, metadata = _read_raster(path, max_pixels=max_pixels, min_side=min_side)
     rgb = _apply_orientation(as_rgb_uint8(native, name=str(path)), orientation)
-    return LoadedImage(pixels=rgb, path=str(path), exif=camera)
+    return LoadedImage(pixels=rgb, path=str(path), exif=camera, metadata=metadata)
 
 
 def read_mask(path: str | os.PathLike, *, max_pixels: int = 60_000_000) -> np.ndarray:
@@ -154,7 +171,7 @@ def read_mask(path: str | os.PathLike, *, max_pixels: int = 60_000_000) -> np.nd
     coverage are checked by :func:`validate_pair`, which knows the target.
 
     Raises MissingFileError, UnreadableFileError, CorruptImageError, ImageTooLargeError."""
-    native, orientation, _ = _read_raster(path, max_pixels=max_pixels, min_side=1)
+    native, orientation, _, _ = _read_raster(path, max_pixels=max_pixels, min_side=1)
     return _apply_orientation(_mask_channel(native, name=str(path)), orientation) >= MASK_THRESHOLD
 
 
@@ -226,34 +243,107 @@ def as_rgb_uint8(image: np.ndarray, *, name: str = "image") -> np.ndarray:
 
 def check_output_path(path: str | os.PathLike) -> None:
     """Raise OutputError now, before any work, if ``path`` cannot be written: unsupported extension
-    (png, jpg, jpeg, webp, tif, tiff), missing or non-writable folder, or a directory in its place."""
+    (png, jpg, jpeg, webp, tif, tiff), missing or non-writable folder, a directory in its place, or
+    a name too long for the folder's file system once the temporary-file affixes are added."""
     p = Path(path)
     if p.suffix.lower() not in _WRITE_FORMATS:
         known = ", ".join(ext.lstrip(".") for ext in _WRITE_FORMATS)
         raise OutputError(f"{p}: unsupported output extension '{p.suffix}' (use one of {known})")
-    folder = p.parent
-    if not folder.is_dir():
-        raise OutputError(f"{p}: output folder {folder} does not exist")
-    if not os.access(folder, os.W_OK | os.X_OK):
-        raise OutputError(f"{p}: output folder {folder} is not writable")
-    if p.is_dir():
+    _check_writable_folder(p, p.parent, "output folder")
+    _check_name_length(p, _temp_path(p).name)
+    if _stat_mode(p, OutputError) is not None and stat.S_ISDIR(_stat_mode(p, OutputError)):
         raise OutputError(f"{p}: is a directory")
 
 
-def write_image_atomic(path: str | os.PathLike, rgb: np.ndarray) -> None:
+def check_output_dir(path: str | os.PathLike) -> None:
+    """Raise OutputError now, before any work, if ``path`` cannot be a folder geofill writes files
+    into (``--debug-dir``): an existing file, a name too long, or a nearest existing parent that is
+    not a writable folder."""
+    p = Path(path)
+    mode = _stat_mode(p, OutputError)
+    if mode is not None:
+        if not stat.S_ISDIR(mode):
+            raise OutputError(f"{p}: exists and is not a directory")
+        _check_writable_folder(p, p, "folder")
+        return
+    parent = p.parent
+    while _stat_mode(parent, OutputError) is None and parent != parent.parent:
+        parent = parent.parent
+    _check_writable_folder(p, parent, "parent folder")
+    for part in p.parts:
+        _check_name_length(p, part)
+
+
+def _stat_mode(p: Path, error: type[Exception]) -> int | None:
+    """``st_mode`` of ``p``, None when it does not exist; ``error`` for any other OS refusal
+    (a name too long, permissions), whose message names the path."""
+    try:
+        return os.stat(p).st_mode
+    except (FileNotFoundError, NotADirectoryError):
+        return None
+    except OSError as exc:
+        raise error(f"{p}: {exc.strerror or _one_line(exc)}") from exc
+
+
+def _check_writable_folder(p: Path, folder: Path, what: str) -> None:
+    mode = _stat_mode(folder, OutputError)
+    if mode is None or not stat.S_ISDIR(mode):
+        raise OutputError(f"{p}: {what} {folder} does not exist")
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise OutputError(f"{p}: {what} {folder} is not writable")
+
+
+def _check_name_length(p: Path, name: str) -> None:
+    folder = next((f for f in p.parents if _stat_mode(f, OutputError) is not None), Path("."))
+    try:
+        name_max = os.pathconf(folder, "PC_NAME_MAX")
+    except (OSError, ValueError):
+        name_max = 255  # the limit of every common file system
+    if len(os.fsencode(name)) > name_max:
+        raise OutputError(
+            f"{p}: file name too long ({len(os.fsencode(p.name))} bytes; the limit here is "
+            f"{name_max - (len(os.fsencode(name)) - len(os.fsencode(p.name)))} bytes)"
+        )
+
+
+def _temp_path(p: Path) -> Path:
+    # A hidden name unique to this call; short affixes leave the longest possible output name.
+    return p.with_name(f".{p.name}.{uuid.uuid4().hex[:12]}.tmp")
+
+
+def write_image_atomic(
+    path: str | os.PathLike,
+    rgb: np.ndarray,
+    *,
+    metadata: ImageMetadata | None = None,
+    quality: int | None = None,
+) -> None:
     """Write an image so that ``path`` holds either its old content or the complete new image.
 
     The image (any array :func:`as_rgb_uint8` accepts) is encoded into a temporary file in the same
     folder, then moved over ``path`` with ``os.replace`` (atomic within a file system); the format
-    follows the extension, JPEG and WebP at quality 95. Nothing is left behind on failure.
-    Raises OutputError (and ArrayFormatError for an unsupported array)."""
+    follows the extension. ``quality`` (1-100, JPEG and WebP only; default 95) sets the lossy
+    encoders' quality; ``metadata`` (EXIF, ICC profile) is embedded. Nothing is left behind on
+    failure or on an exception raised mid-write (a SIGTERM turned into one by the CLI).
+    Raises OutputError, ConfigError for a ``quality`` the format does not take (and
+    ArrayFormatError for an unsupported array)."""
     check_output_path(path)
     p = Path(path)
     pil_format, options = _WRITE_FORMATS[p.suffix.lower()]
+    if quality is not None:
+        if "quality" not in options:
+            raise ConfigError(f"{p}: --quality applies to JPEG and WebP output only, not {pil_format}")
+        if not 1 <= quality <= 100:
+            raise ConfigError(f"{p}: quality must be in [1, 100], got {quality}")
+        options = options | {"quality": quality}
+    if metadata is not None:
+        options = options | {
+            k: v for k, v in (("exif", metadata.exif), ("icc_profile", metadata.icc_profile)) if v
+        }
     image = Image.fromarray(as_rgb_uint8(rgb, name=str(p)))
-    # A hidden name unique to this call; "xb" refuses to reuse an existing file and, unlike
-    # tempfile.mkstemp (mode 0600), creates it with the permissions the umask gives a normal file.
-    tmp = p.with_name(f".{p.name}.{uuid.uuid4().hex}.tmp")
+    # "xb" refuses to reuse an existing file and, unlike tempfile.mkstemp (mode 0600), creates it
+    # with the permissions the umask gives a normal file.
+    tmp = _temp_path(p)
     try:
         with open(tmp, "xb") as fh:
             image.save(fh, format=pil_format, **options)
@@ -279,9 +369,10 @@ def read_depth_file(
     p = Path(path)
     if not (math.isfinite(scale) and scale > 0):
         raise ConfigError(f"depth file scale must be a finite number > 0, got {scale}")
-    if p.is_dir():
+    mode = _stat_mode(p, DepthFileError)
+    if mode is not None and stat.S_ISDIR(mode):
         raise DepthFileError(f"{p}: is a directory, not a depth file")
-    if not p.is_file():
+    if mode is None or not stat.S_ISREG(mode):
         raise DepthFileError(f"{p}: depth file not found")
     reader = _DEPTH_READERS.get(p.suffix.lower())
     if reader is None:
@@ -308,20 +399,26 @@ def read_depth_file(
 
 def _read_raster(
     path: str | os.PathLike, *, max_pixels: int, min_side: int
-) -> tuple[np.ndarray, int, ExifCamera]:
+) -> tuple[np.ndarray, int, ExifCamera, ImageMetadata]:
     """Native-depth pixels (HxW, or HxWxC with C = 2, 3, 4 in RGB(A) order, not yet oriented), the
-    EXIF orientation and the lens tags of an image file; the size is checked from the header before
-    decoding."""
+    EXIF orientation, the lens tags and the metadata to carry into an output; the size is checked
+    from the header before decoding."""
     p = _existing_file(path)
     try:
         fh = open(p, "rb")
     except OSError as exc:
         raise UnreadableFileError(f"{p}: cannot open file ({_one_line(exc)})") from exc
     with fh, _pillow_bomb_guard(p, max_pixels):
+        formats = INPUT_FORMATS
+        if _is_heif(fh):
+            require("pillow_heif", f"{p}: reading HEIC/HEIF").register_heif_opener()
+            formats = ("HEIF",)
         try:
-            img = Image.open(fh, formats=INPUT_FORMATS)
+            img = Image.open(fh, formats=formats)
         except UnidentifiedImageError as exc:
-            raise CorruptImageError(f"{p}: not a PNG, JPEG, WebP or TIFF image, or corrupt") from exc
+            if _is_tiff(fh):  # float64/float16 or multi-channel float samples: Pillow has no mode
+                return _read_tiff_without_pillow(p, max_pixels=max_pixels, min_side=min_side)
+            raise CorruptImageError(f"{p}: not a PNG, JPEG, WebP, TIFF or HEIC image, or corrupt") from exc
         except _DECODE_ERRORS as exc:
             raise CorruptImageError(f"{p}: corrupt image header ({_one_line(exc)})") from exc
         _check_size(str(p), *img.size, max_pixels=max_pixels, min_side=min_side)
@@ -336,7 +433,62 @@ def _read_raster(
             raise CorruptImageError(
                 f"{p}: cannot decode image, truncated or corrupt ({_one_line(exc)})"
             ) from exc
-    return pixels, orientation, camera
+        metadata = _carried_metadata(img, exif, orientation)
+    return pixels, orientation, camera, metadata
+
+
+def _is_tiff(fh: IO[bytes]) -> bool:
+    fh.seek(0)
+    head = fh.read(4)
+    fh.seek(0)
+    return head in (b"II*\x00", b"MM\x00*", b"II+\x00", b"MM\x00+")  # classic and BigTIFF
+
+
+def _read_tiff_without_pillow(
+    p: Path, *, max_pixels: int, min_side: int
+) -> tuple[np.ndarray, int, ExifCamera, ImageMetadata]:
+    """A TIFF Pillow cannot open (float samples other than single-channel float32): size from
+    tifffile's header before decoding, then the pixels; orientation from the TIFF tag."""
+    try:
+        with tifffile.TiffFile(p) as tif:
+            page = tif.pages[0]
+            h, w = (
+                (page.shape[1:3] if page.axes.startswith("S") else page.shape[:2])
+                if page.ndim > 1
+                else (0, 0)
+            )
+            _check_size(str(p), w, h, max_pixels=max_pixels, min_side=min_side)
+            tag = page.tags.get(274)  # Orientation
+            orientation = int(tag.value) if tag is not None and int(tag.value) in range(1, 9) else 1
+        return _read_tiff(p), orientation, ExifCamera(), ImageMetadata()
+    except _DECODE_ERRORS as exc:
+        raise CorruptImageError(f"{p}: cannot decode TIFF, truncated or corrupt ({_one_line(exc)})") from exc
+
+
+def _is_heif(fh: IO[bytes]) -> bool:
+    """True for an ISO-BMFF file whose major brand is HEIF/HEIC/AVIF-like (ftyp box first)."""
+    fh.seek(4)
+    head = fh.read(8)
+    fh.seek(0)
+    return head[:4] == b"ftyp" and head[4:8] in _HEIF_BRANDS
+
+
+def _carried_metadata(img: Image.Image, exif: Image.Exif, orientation: int) -> ImageMetadata:
+    """The EXIF block (orientation reset to 1, pixel dimensions those of the upright pixels) and
+    the ICC profile of an opened image."""
+    icc = img.info.get("icc_profile") or None
+    if not len(exif):
+        return ImageMetadata(icc_profile=icc)
+    if _ORIENTATION in exif:
+        exif[_ORIENTATION] = 1
+    sub = exif.get_ifd(ExifTags.IFD.Exif)
+    if orientation in _TRANSPOSING_ORIENTATIONS:
+        for tag in (ExifTags.Base.ExifImageWidth, ExifTags.Base.ExifImageHeight):
+            sub.pop(tag, None)  # stored for the unrotated image: wrong for the upright output
+    try:
+        return ImageMetadata(exif=exif.tobytes(), icc_profile=icc)
+    except (*_DECODE_ERRORS, TypeError) as exc:  # a tag Pillow can read but not write back
+        return ImageMetadata(icc_profile=icc, note=f"EXIF not carried: {_one_line(exc)}")
 
 
 def _decode(img: Image.Image, path: Path, fh: IO[bytes]) -> np.ndarray:
@@ -351,7 +503,20 @@ def _decode(img: Image.Image, path: Path, fh: IO[bytes]) -> np.ndarray:
         return data
     if img.format == "TIFF" and _tiff_is_deep(img):
         return _read_tiff(path)
+    if img.format in ("JPEG", "MPO") and img.mode in ("RGB", "L"):
+        return _decode_jpeg_strict(path, grey=img.mode == "L")
     return np.array(img.convert("RGBA" if img.has_transparency_data else "RGB"))  # writable
+
+
+def _decode_jpeg_strict(path: Path, grey: bool) -> np.ndarray:
+    """A YCbCr or grey JPEG through simplejpeg (libjpeg-turbo, the same pixels as Pillow) in strict
+    mode: libjpeg decodes a scan cut short by an end marker as flat grey with only a warning, which
+    Pillow drops, so a 10 kB file whose header claims 7000 x 7000 would come back as 49 MP of grey.
+    Strict mode turns that warning into a ValueError (a corrupt image)."""
+    import simplejpeg
+
+    pixels = simplejpeg.decode_jpeg(path.read_bytes(), colorspace="GRAY" if grey else "RGB", strict=True)
+    return pixels[..., 0] if grey else pixels
 
 
 def _png_bit_depth(fh: IO[bytes]) -> int:
@@ -382,11 +547,12 @@ def _read_tiff(path: Path) -> np.ndarray:
 
 def _existing_file(path: str | os.PathLike) -> Path:
     p = Path(path)
-    if p.is_dir():
-        raise MissingFileError(f"{p}: is a directory, not a file")
-    if not p.exists():
+    mode = _stat_mode(p, UnreadableFileError)
+    if mode is None:
         raise MissingFileError(f"{p}: file not found")
-    if not p.is_file():
+    if stat.S_ISDIR(mode):
+        raise MissingFileError(f"{p}: is a directory, not a file")
+    if not stat.S_ISREG(mode):
         raise MissingFileError(f"{p}: not a regular file")
     return p
 
@@ -520,6 +686,8 @@ def _one_line(exc: BaseException) -> str:
 
 
 def _check_depth_size(path: Path, shape: tuple[int, ...], expected_hw: tuple[int, int]) -> None:
+    if len(shape) < 2:
+        raise DepthFileError(f"{path}: expected a 2-D depth map, got array shape {tuple(shape)}")
     if tuple(shape[:2]) != expected_hw:
         raise DepthFileError(
             f"{path}: depth map is {_wxh(shape)} but the image it belongs to is {_wxh(expected_hw)}"
@@ -550,12 +718,7 @@ def _depth_tiff(path: Path, expected_hw: tuple[int, int]) -> np.ndarray:
 def _depth_exr(path: Path, expected_hw: tuple[int, int]) -> np.ndarray:
     # The OpenEXR package rather than OpenCV: cv2 reads EXR only when OPENCV_IO_ENABLE_OPENEXR was set
     # before its first import, which a library imported after cv2 cannot arrange.
-    try:
-        import OpenEXR
-    except ImportError as exc:
-        raise DepthFileError(
-            f"{path}: reading EXR needs the optional 'exr' extra (pip install 'geofill[exr]')"
-        ) from exc
+    OpenEXR = require("OpenEXR", f"{path}: reading EXR")
     try:
         header = OpenEXR.File(str(path), header_only=True).header()
         low, high = header["dataWindow"]

@@ -17,6 +17,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from .extras import require
+
 #: Context around the hole's bounding box, as a fraction of its longer side (LaMa sees the hole's
 #: surroundings; more context costs resolution inside a fixed-size model).
 CONTEXT_FRACTION = 0.5
@@ -32,8 +34,7 @@ class LamaOnnx:
     """A LaMa ONNX model; call it with (image HxWx3 uint8, region HxW bool) -> inpainted image."""
 
     def __init__(self, path: str | Path):
-        import onnxruntime as ort
-
+        ort = require("onnxruntime", "LaMa inpainting (inpaint.method lama)")
         self.path = Path(path)
         self.session = ort.InferenceSession(str(self.path), providers=["CPUExecutionProvider"])
         inputs = self.session.get_inputs()

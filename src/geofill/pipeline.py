@@ -40,6 +40,7 @@ from .io import as_rgb_uint8, validate_pair
 from .matching import Matches, match_pair
 from .merge import merge_fill
 from .pose import PoseEstimate, estimate_pose
+from .preflight import check_resources
 from .progress import Progress
 from .refine import RefinedRender, refine_render
 from .render import ReferenceRender, render_reference
@@ -169,6 +170,8 @@ def prepare_fill(
 ) -> FillContext:
     """Check the inputs, blank the hole, and resolve the depth backend and the inpainter once."""
     target = as_rgb_uint8(target)
+    # The depth file and the depth model belong to the (first) reference the depth stage runs on.
+    check_resources(cfg, (sources[0].shape[1], sources[0].shape[0]))
     hole = None
     for s in sources:
         hole = validate_pair(
@@ -309,7 +312,7 @@ def fill(
     ('reference', True)
     """
     cfg = config or FillConfig()
-    prog = progress or Progress(quiet=True)
+    prog = progress or Progress(quiet=True, time_budget_s=cfg.time_budget_s)
     images = [sources] if isinstance(sources, np.ndarray) and sources.ndim == 3 else list(sources)
     if not images:
         raise ArrayFormatError("no reference image given: pass at least one source")

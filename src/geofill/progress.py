@@ -1,4 +1,4 @@
-"""Per-stage timing and one-line progress messages on stderr."""
+"""Per-stage timing, one-line progress messages on stderr, and the fill's time budget."""
 
 from __future__ import annotations
 
@@ -7,19 +7,30 @@ import threading
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
+from time import monotonic
 from typing import TextIO
+
+from .errors import TimeBudgetError
 
 
 class Progress:
-    """Times named stages; prints ``geofill: <stage> ... <s> s  <note>`` unless quiet."""
+    """Times named stages; prints ``geofill: <stage> ... <s> s  <note>`` unless quiet.
 
-    def __init__(self, quiet: bool = False, stream: TextIO | None = None) -> None:
+    ``time_budget_s`` bounds the whole run from this object's creation: every stage runs inside
+    :meth:`stage`, which raises :class:`TimeBudgetError` when a stage would start past the deadline
+    (a stage already running is not interrupted: the budget is a bound on when work starts)."""
+
+    def __init__(
+        self, quiet: bool = False, stream: TextIO | None = None, time_budget_s: float | None = None
+    ) -> None:
         self.quiet = quiet
         self.stream = stream if stream is not None else sys.stderr
         self.timings: dict[str, float] = {}
         self.prefix = ""
         self.parent: Progress | None = None
         self._lock = threading.RLock()  # shared with children, which may run in threads
+        self.time_budget_s = time_budget_s
+        self._start = monotonic()
 
     def child(self, prefix: str) -> Progress:
         """A progress for one part of the work (one reference): its own timings, also added to
@@ -40,9 +51,21 @@ class Progress:
             if self.parent is not None:
                 self.parent._add(name, seconds)
 
+    def check_deadline(self, next_stage: str) -> None:
+        """Raise TimeBudgetError when the budget is spent (``next_stage`` is named in the message)."""
+        if self.time_budget_s is None:
+            return
+        elapsed = monotonic() - self._start
+        if elapsed > self.time_budget_s:
+            raise TimeBudgetError(
+                f"time budget of {self.time_budget_s:g} s exceeded after {elapsed:.1f} s, before stage "
+                f"'{next_stage}' (raise it with --set time_budget_s=SECONDS)"
+            )
+
     @contextmanager
     def stage(self, name: str) -> Iterator[list[str]]:
         """Context that times ``name``; append strings to the yielded list to print them with it."""
+        self.check_deadline(name)
         notes: list[str] = []
         t0 = time.perf_counter()
         yield notes  # a stage that raises is reported by whoever handles the error, not here

@@ -42,6 +42,23 @@ def _gray(image: np.ndarray) -> np.ndarray:
     return cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)
 
 
+#: Smallest side (px) an image given to OpenCV's DIS flow is padded to.
+_DIS_MIN_SIDE = 32
+
+
+def _dis_flow(dis: cv2.DISOpticalFlow, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """DIS flow a -> b (HxW uint8) on copies padded by edge replication so that the short side is
+    at least half the long side and at least 32 px. DIS sizes its pyramid from the long side, so
+    on a thin strip (17 x 101 px, a render window around a thin hole) its coarsest level has fewer
+    rows than a patch and OpenCV 4.x crashes (segfault) or raises."""
+    h, w = a.shape
+    side = max(_DIS_MIN_SIDE, (max(h, w) + 1) // 2)
+    pad_h, pad_w = max(0, side - h), max(0, side - w)
+    if pad_h or pad_w:
+        a, b = (cv2.copyMakeBorder(x, 0, pad_h, 0, pad_w, cv2.BORDER_REPLICATE) for x in (a, b))
+    return dis.calc(a, b, None)[:h, :w]
+
+
 def band_flow(
     render: np.ndarray,
     target: np.ndarray,
@@ -62,8 +79,8 @@ def band_flow(
     # hole's border) that would pull the flow of the band pixels next to it.
     t_gray[hole] = r_gray[hole]
     dis = cv2.DISOpticalFlow.create(_PRESETS[preset])
-    fwd = dis.calc(t_gray, r_gray, None)
-    bwd = dis.calc(r_gray, t_gray, None)
+    fwd = _dis_flow(dis, t_gray, r_gray)
+    bwd = _dis_flow(dis, r_gray, t_gray)
     h, w = hole.shape
     gy, gx = np.mgrid[0:h, 0:w].astype(np.float32)
     back = cv2.remap(

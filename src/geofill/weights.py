@@ -14,6 +14,10 @@ every fill of an offline machine. The body is streamed to a temporary file while
 computed, checked against the length the server announced and against the spec's size/SHA-256,
 and only then renamed into the cache, so a truncated or corrupt download never lands there.
 ``HF_HUB_OFFLINE=1`` (read at call time) forbids downloads.
+
+``huggingface_hub`` comes with the ``onnx`` extra and is imported only here, when the hub cache is
+searched or a file is downloaded: without it the hub cache is skipped (and said so) and a download
+is a one-line error naming the extra.
 """
 
 from __future__ import annotations
@@ -27,6 +31,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
+
+from .extras import available, install_hint, require
 
 #: Seconds without progress before a download gives up.
 DOWNLOAD_TIMEOUT_S = 30.0
@@ -64,6 +70,7 @@ class WeightsSpec:
             return self.url
         if not self.repo_id:
             raise ValueError(f"weights '{self.name}' have neither a hub repo nor a URL")
+        require("huggingface_hub", f"downloading {self.name}")
         from huggingface_hub import constants, hf_hub_url
 
         endpoint = endpoint or os.environ.get("HF_ENDPOINT") or constants.ENDPOINT
@@ -142,7 +149,7 @@ def _verified(spec: WeightsSpec) -> bool:
 
 
 def _hub_cache_file(spec: WeightsSpec) -> Path | None:
-    if not spec.repo_id:
+    if not spec.repo_id or not available("huggingface_hub"):
         return None
     from huggingface_hub import try_to_load_from_cache
 
@@ -151,10 +158,16 @@ def _hub_cache_file(spec: WeightsSpec) -> Path | None:
 
 
 def download(
-    spec: WeightsSpec, dest: Path, endpoint: str | None = None, timeout: float = DOWNLOAD_TIMEOUT_S
+    spec: WeightsSpec,
+    dest: Path,
+    endpoint: str | None = None,
+    timeout: float = DOWNLOAD_TIMEOUT_S,
+    progress_bar: bool = False,
 ) -> None:
     """Download ``spec`` to ``dest`` atomically; raise ``OSError``/``ValueError`` naming the problem
-    (network error, truncated body, size or checksum mismatch) with nothing left at ``dest``."""
+    (network error, truncated body, size or checksum mismatch) with nothing left at ``dest``.
+    ``progress_bar``: a tqdm bar on stderr (tqdm comes with huggingface_hub)."""
+    require("huggingface_hub", f"downloading {spec.name}")
     from huggingface_hub.utils import build_hf_headers
 
     url = spec.download_url(endpoint)
@@ -166,10 +179,15 @@ def download(
         with urllib.request.urlopen(req, timeout=timeout) as resp, open(tmp, "wb") as out:
             announced = resp.headers.get("Content-Length")
             h, n = hashlib.sha256(), 0
+            bar = _progress_bar(spec, announced) if progress_bar else None
             while chunk := resp.read(1 << 20):
                 out.write(chunk)
                 h.update(chunk)
                 n += len(chunk)
+                if bar is not None:
+                    bar.update(len(chunk))
+            if bar is not None:
+                bar.close()
         if announced is not None and n != int(announced):
             raise ValueError(f"download of {url} truncated: {n} of {announced} bytes")
         if spec.size is not None and n != spec.size:
@@ -182,6 +200,13 @@ def download(
         os.replace(tmp, dest)
     finally:
         tmp.unlink(missing_ok=True)
+
+
+def _progress_bar(spec: WeightsSpec, announced: str | None):
+    from tqdm import tqdm
+
+    total = int(announced) if announced is not None else spec.size
+    return tqdm(total=total, unit="B", unit_scale=True, unit_divisor=1024, desc=spec.filename, leave=True)
 
 
 def resolve_weights(
@@ -218,6 +243,8 @@ def resolve_weights(
             path.unlink(missing_ok=True)  # ours and wrong: fetch it again
     if not tried:
         tried.append(f"not in the cache ({cached.parent})")
+        if spec.repo_id and not available("huggingface_hub"):
+            tried.append(f"Hugging Face cache not searched ({install_hint('huggingface_hub')})")
     if hub_offline():
         return WeightsUnavailable(spec, "; ".join([*tried, "downloads disabled by HF_HUB_OFFLINE"]))
     if not allow_download:

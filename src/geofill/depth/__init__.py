@@ -90,15 +90,21 @@ class BackendChoice:
 
 
 def choose_backend(cfg: DepthConfig, say: Callable[[str], None] | None = None) -> BackendChoice:
-    """Resolve ``auto``: ``fused`` when the learned model's weights resolve (path, environment
-    variable, cache or download), else ``stereo``, with the reason. An explicit
-    ``cfg.model_path`` that is not a file is an error, not a fallback. Other backends as given."""
+    """Resolve ``auto``: ``fused`` when ONNX Runtime is installed and the learned model's weights
+    resolve (path, environment variable, cache, or a download where ``cfg.download`` allows it),
+    else ``stereo``, with the reason. An explicit ``cfg.model_path`` that cannot be used is an
+    error, not a fallback. Other backends as given."""
     if cfg.backend != "auto":
         return BackendChoice(cfg.backend, f"{cfg.backend} (configured)")
     from ..errors import DepthModelError
+    from ..extras import available, require
     from ..weights import WeightsUnavailable
     from .onnx import resolve_model
 
+    if not available("onnxruntime"):
+        if cfg.model_path:
+            require("onnxruntime", "depth.model_path (learned depth)")
+        return BackendChoice("stereo", "stereo (auto: learned depth needs onnxruntime, not installed)")
     weights = resolve_model(cfg, say)
     if isinstance(weights, WeightsUnavailable):
         if cfg.model_path:

@@ -18,7 +18,8 @@ import cv2
 import numpy as np
 
 from ..config import DepthConfig
-from ..errors import DepthModelError
+from ..errors import DepthModelError, MissingExtraError
+from ..extras import require
 from ..weights import ResolvedWeights, WeightsSpec, WeightsUnavailable, resolve_weights
 from . import DepthContext, DepthPrediction
 
@@ -135,8 +136,7 @@ def postprocess(output: np.ndarray, height: int, width: int) -> np.ndarray:
 @lru_cache(maxsize=2)
 def _session(path: str, mtime_ns: int):
     """One ONNX Runtime session per model file (loading a 100-MB model takes ~1 s)."""
-    import onnxruntime as ort
-
+    ort = require("onnxruntime", "learned depth (depth.backend onnx or fused)")
     return ort.InferenceSession(path, providers=["CPUExecutionProvider"])
 
 
@@ -164,6 +164,8 @@ def predict_learned(image: np.ndarray, cfg: DepthConfig) -> np.ndarray:
     spec = MODELS[cfg.model]
     try:
         out = run_model(str(weights.path), preprocess(image, spec))
+    except MissingExtraError:
+        raise
     except Exception as exc:  # onnxruntime raises its own exception types for bad files/shapes
         raise DepthModelError(f"{weights.path}: cannot run {spec.weights.name}: {exc}") from exc
     return postprocess(out, *image.shape[:2])

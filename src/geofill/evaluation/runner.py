@@ -30,8 +30,9 @@ from typing import Any
 import cv2
 import numpy as np
 
-from ..config import PRESETS, FillConfig
+from ..config import PRESETS, FillConfig, InpaintConfig
 from ..errors import ConfigError, InputError, MissingFileError
+from ..inpaint import inpaint_single
 from ..io import ExifCamera, read_image
 from .baselines import homography_fill_detailed, opencv_inpaint
 from .masks import (
@@ -118,7 +119,16 @@ def _homography_method(
     return MethodOutput(fill.image, {"total": time.perf_counter() - t0}, info)
 
 
+def _patchmatch_method(
+    target: np.ndarray, hole: np.ndarray, sources: Sequence[np.ndarray], exif: PairExif
+) -> MethodOutput:
+    t0 = time.perf_counter()
+    image = inpaint_single(target, hole, InpaintConfig(method="patchmatch"))
+    return MethodOutput(image, {"total": time.perf_counter() - t0})
+
+
 register_method("opencv_inpaint", _opencv_method)
+register_method("patchmatch_inpaint", _patchmatch_method)
 register_method("homography", _homography_method)
 
 #: What ``--methods`` defaults to: the baselines and geofill as configured (presets by name,
