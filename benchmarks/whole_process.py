@@ -35,24 +35,15 @@ SYNTHETIC_SIZES = {"720p": (1280, 720), "4k": (3840, 2160)}
 
 def _make_inputs(case: str, folder: Path) -> None:
     """Runs in a child process: writes target.png, source.png, mask.png for ``case``."""
-    import cv2
-    import numpy as np
+    from speed import write_inputs, write_pair_files  # this folder is on sys.path when run as a script
 
     if case == "berlin":
         from geofill.evaluation.runner import load_pair, pair_mask
 
         pair = load_pair(PAIRS / BERLIN)
-        target, source, hole = pair.target, pair.source, pair_mask(pair, 0)
+        write_pair_files(folder, pair.target, pair.source, pair_mask(pair, 0))
     else:
-        from geofill.synthetic import make_pair
-
-        w, h = SYNTHETIC_SIZES[case]
-        sp = make_pair(seed=0, width=w, height=h, supersample=1 if w * h > 3e6 else 2)
-        target, source = sp.target, sp.source
-        hole = cv2.resize(sp.hole.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) > 0
-    cv2.imwrite(str(folder / "target.png"), cv2.cvtColor(target, cv2.COLOR_RGB2BGR))
-    cv2.imwrite(str(folder / "source.png"), cv2.cvtColor(source, cv2.COLOR_RGB2BGR))
-    cv2.imwrite(str(folder / "mask.png"), hole.astype(np.uint8) * 255)
+        write_inputs(SYNTHETIC_SIZES[case], None, folder)
 
 
 def _timed(cmd: list[str]) -> tuple[float, float]:
