@@ -186,8 +186,9 @@ SECTIONS = [
         "with the standalone OpenCV SIFT + MAGSAC homography + colour-gain script "
         "(`benchmarks/homography_baseline.py`) on the same files; medians of 5 runs after a warm-up. The "
         "machine has 2 cores shared with other jobs (load average printed): the ratio is the figure "
-        "that carries over, the seconds are inflated by the load.",
-        [PY, "benchmarks/whole_process.py", "--runs", "5"],
+        "that carries over, the seconds are inflated by the load. 4K and the pixel exponent: add "
+        "`--cases 720p,berlin,4k`.",
+        [PY, "benchmarks/whole_process.py", "--runs", "5", "--cases", "720p,berlin"],
     ),
     Section(
         "focal",
