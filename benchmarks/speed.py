@@ -66,7 +66,15 @@ def _child(folder: Path, overrides: list[str]) -> None:
     )
 
 
-def _inputs(size: tuple[int, int], pair_dir: str | None, folder: Path) -> None:
+def write_pair_files(folder: Path, target: np.ndarray, source: np.ndarray, hole: np.ndarray) -> None:
+    """target.png, source.png (RGB in) and mask.png (255 = hole) in ``folder``, as a user would pass them."""
+    cv2.imwrite(str(folder / "target.png"), cv2.cvtColor(target, cv2.COLOR_RGB2BGR))
+    cv2.imwrite(str(folder / "source.png"), cv2.cvtColor(source, cv2.COLOR_RGB2BGR))
+    cv2.imwrite(str(folder / "mask.png"), hole.astype(np.uint8) * 255)
+
+
+def write_inputs(size: tuple[int, int], pair_dir: str | None, folder: Path) -> None:
+    """The pair files of one size: the synthetic scene, or the real pair ``pair_dir`` resized."""
     from geofill.evaluation.runner import load_pair, pair_mask
     from geofill.synthetic import make_pair
 
@@ -81,9 +89,7 @@ def _inputs(size: tuple[int, int], pair_dir: str | None, folder: Path) -> None:
         sp = make_pair(seed=0, width=w, height=h, supersample=1 if w * h > 3e6 else 2)
         target, source = sp.target, sp.source
         hole = cv2.resize(sp.hole.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) > 0
-    cv2.imwrite(str(folder / "target.png"), cv2.cvtColor(target, cv2.COLOR_RGB2BGR))
-    cv2.imwrite(str(folder / "source.png"), cv2.cvtColor(source, cv2.COLOR_RGB2BGR))
-    cv2.imwrite(str(folder / "mask.png"), hole.astype(np.uint8) * 255)
+    write_pair_files(folder, target, source, hole)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -100,7 +106,7 @@ def main(argv: list[str] | None = None) -> int:
     results = []
     for w, h in sizes:
         with tempfile.TemporaryDirectory() as tmp:
-            _inputs((w, h), args.pair, Path(tmp))
+            write_inputs((w, h), args.pair, Path(tmp))
             cmd = [sys.executable, __file__, "--child", tmp, *(x for s in args.set for x in ("--set", s))]
             # One warm-up run so numba's on-disk JIT cache is filled; the second run is measured.
             subprocess.run(cmd, check=True, capture_output=True)

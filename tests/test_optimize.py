@@ -16,8 +16,11 @@ import geofill.optimize as opt
 from geofill.camera import Intrinsics, default_focal_px, pose_errors_deg
 from geofill.config import FillConfig, OptimizeConfig
 from geofill.depth.align import AlignedDepth
-from geofill.importance import edge_maps, edge_weight, hole_weight, importance_map
 from geofill.matching import match_pair
+from geofill.optimize import fast_solver as opt_fast
+from geofill.optimize import params as opt_params
+from geofill.optimize import stage as opt_stage
+from geofill.optimize.importance import edge_maps, edge_weight, hole_weight, importance_map
 from geofill.pipeline import fill, render_margin_px
 from geofill.render import project_source_grid, render_mesh, render_roi
 from geofill.synthetic import make_pair
@@ -149,7 +152,7 @@ def test_torch_projection_matches_render_projection(space):
     px = np.stack([jj.ravel(), ii.ravel()], 1).astype(np.float64)
     values = depth.ravel() if space == "depth" else 1.0 / depth.ravel()
     pts = opt.Points.from_pixels(px, K_s, values)
-    x, y = opt.project(*opt._torch_params(opt.PoseDepthParams(R, t)), pts, K_t, space)
+    x, y = opt.project(*opt_params.torch_params(opt.PoseDepthParams(R, t)), pts, K_t, space)
     assert np.allclose(x.numpy(), u_ref.ravel(), atol=2e-3)
     assert np.allclose(y.numpy(), v_ref.ravel(), atol=2e-3)
 
@@ -165,7 +168,7 @@ def test_analytic_jacobian_matches_finite_differences(space):
     p = opt.PoseDepthParams(
         Rotation.from_rotvec([0.02, 0.1, -0.03]).as_matrix(), np.array([0.6, 0.1, 0.2]), 1.1, 0.05, 0.1
     )
-    chart = opt._Chart(p, with_focal=True)
+    chart = opt_fast._Chart(p, with_focal=True)
     r = chart.reproject(pts, K_t, space)
     Jx, Jy = chart.jacobian(r, pts, K_t, space)
     gx, gy = torch.randn(50, generator=torch.Generator().manual_seed(0)), torch.randn(50)
@@ -215,7 +218,7 @@ def test_reprojection_vjp_equals_autograd_through_the_projection(space):
     px, py = opt.project(*args, pts, K_t, space)
     (gx * px + gy * py).sum().backward()
     with torch.no_grad():
-        r = opt._reproject(*args, pts, K_t, space)
+        r = opt_params.reproject_points(*args, pts, K_t, space)
         raw = opt.reprojection_vjp(r, pts, K_t, space, args[0], args[1], 0.1, gx, gy)
     (gq,) = torch.autograd.grad(opt.quaternion_to_matrix(q), q, raw.R)
     for mine, leaf in zip([gq, raw.t, raw.scale, raw.offset, raw.log_focal], [q, *rest], strict=True):
@@ -300,12 +303,12 @@ def test_fast_objective_no_worse_than_paper_solver(scene):
 
 def test_lm_step_lands_on_the_positive_depth_constraint():
     # 7 chart coordinates; the gradient pulls the offset b (index 6) down by 1.
-    lin = opt._Linearisation(np.eye(7)[6], np.eye(7), torch.zeros(1, 7), torch.zeros(1, 7))
+    lin = opt_fast._Linearisation(np.eye(7)[6], np.eye(7), torch.zeros(1, 7), torch.zeros(1, 7))
     level = SimpleNamespace(value_range=(0.05, 2.0))
     p = replace(_identity(), t=np.array([1.0, 0, 0]), scale=1.0, offset=0.0)
-    free = opt._lm_step(lin, np.zeros(7), level, p, negd=False)
+    free = opt_fast._lm_step(lin, np.zeros(7), level, p, negd=False)
     assert free[6] == pytest.approx(-1.0)  # unconstrained: b = -1 makes s v + b < 0
-    step = opt._lm_step(lin, np.zeros(7), level, p, negd=True)
+    step = opt_fast._lm_step(lin, np.zeros(7), level, p, negd=True)
     floor = (p.scale + step[5]) * 0.05 + p.offset + step[6]
     assert floor == pytest.approx(0.0, abs=1e-12) and step[6] < 0  # as far as the constraint allows
 
@@ -323,7 +326,7 @@ def test_rejected_result_keeps_the_initial_geometry(scene, monkeypatch):
     T, depth = scene[4], scene[5]
     T0, d0 = _perturbed_start(T, depth)
     flipped = lambda problem, init: (replace(init, scale=-1.0), [])  # noqa: E731
-    monkeypatch.setattr(opt, "solve_fast", flipped)
+    monkeypatch.setattr(opt_stage, "solve_fast", flipped)
     res = _run(scene, OptimizeConfig(), T0, d0)
     assert res.report.status == "rejected" and "depth scale" in res.report.reason
     assert res.T is T0 and res.depth is d0

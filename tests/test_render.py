@@ -4,10 +4,13 @@ ray-cast synthetic scene rendered with its exact depth and pose."""
 from __future__ import annotations
 
 import cv2
+import numba
 import numpy as np
+import pytest
 
 from geofill.camera import Intrinsics, make_pose
 from geofill.evaluation.metrics import psnr
+from geofill.jit import njit_cached
 from geofill.render import render_mesh, triangle_masks
 from geofill.synthetic import depth_edges, make_pair
 
@@ -119,3 +122,23 @@ def test_render_buffers_are_float32_and_empty_outside_the_roi():
     assert np.isinf(r.depth[outside]).all()
     sampled = r.sample(np.full((120, 160, 3), 77, np.uint8))
     assert (sampled[30:70, 20:60] == 77).all() and not sampled[outside].any()
+
+
+def _add_three(x):
+    return x + 3
+
+
+def test_njit_cached_compiles_in_memory_when_no_cache_folder_is_writable(monkeypatch):
+    # Only the IPython locator, which never serves a file-backed function: numba finds no cache
+    # folder, as for a read-only install run without a writable home.
+    monkeypatch.setattr(numba.config, "CACHE_LOCATOR_CLASSES", "IPythonCacheLocator")
+    with pytest.warns(RuntimeWarning, match="NUMBA_CACHE_DIR"):
+        add = njit_cached()(_add_three)
+    assert add(4) == 7
+    assert add._cache.__class__.__name__ == "NullCache"
+
+
+def test_njit_cached_uses_the_disk_cache_where_writable():
+    add = njit_cached()(_add_three)
+    assert add(4) == 7
+    assert add._cache.__class__.__name__ == "FunctionCache"

@@ -21,7 +21,6 @@ from typing import TYPE_CHECKING, Any
 
 import cv2
 import numpy as np
-from numba import njit
 
 from .camera import Intrinsics
 from .config import RenderConfig
@@ -30,6 +29,7 @@ from .resolution import config_px
 
 if TYPE_CHECKING:
     from .geometry import Geometry
+from .jit import njit_cached
 
 #: Barycentric tolerance so pixels on shared edges are not lost between two triangles.
 _EPS_BARY = 1e-7
@@ -117,7 +117,7 @@ def triangle_masks(depth: np.ndarray, threshold: float) -> tuple[np.ndarray, np.
     return tri_a, tri_b
 
 
-@njit(cache=True, inline="always")
+@njit_cached(inline="always")
 def _raster_triangle(
     ax, ay, az, au, av, bx, by, bz, bu, bv, cx, cy, cz, cu, cv, x0, y0, x1, y1, zbuf, mx, my
 ):
@@ -148,7 +148,7 @@ def _raster_triangle(
                 my[y - y0, x - x0] = (w0 * av * iza + w1 * bv * izb + w2 * cv * izc) * z
 
 
-@njit(cache=True)
+@njit_cached()
 def _raster_mesh(pu, pv, pz, tri_a, tri_b, near, x0, y0, x1, y1, zbuf, mx, my):
     """Rasterise every surviving triangle of the source grid; vertex (i, j) projects to
     (pu, pv, pz)[i, j] (float32, widened to float64 here) and has texture coordinate (j, i)."""

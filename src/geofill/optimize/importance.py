@@ -16,8 +16,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from .config import OptimizeConfig
-from .matching import to_gray_u8
+from ..config import OptimizeConfig
+from ..matching import to_gray_u8
 
 
 def odd_kernel(size_px: float) -> int:

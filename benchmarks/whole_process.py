@@ -1,0 +1,128 @@
+"""Whole-process wall time and peak RSS of ``geofill fill`` as a user runs it, each run paired with
+the standalone homography baseline (``benchmarks/homography_baseline.py``) on the same files, and
+the start-up time of ``geofill --help`` and ``geofill config``.
+
+Runs alternate geofill, baseline, geofill, baseline, ... after one unmeasured warm-up of each (it
+fills numba's and the OS's caches), so drift in the machine's load hits both alike: the median of the
+per-run ratios is the figure that carries over between machines; the absolute seconds depend on
+the load (printed with ``os.getloadavg``). Peak RSS is each child's own (``os.wait4``); inputs are
+written by a child process so that the parent stays small.
+
+Cases: ``720p`` (the synthetic ray-cast scene at 1280x720 with its object hole), ``berlin`` (the DEV
+pair dev_opensfm_berlin_01_02 at its own 1280x960 with the evaluation's stroke hole, seed 0),
+``4k`` (the synthetic scene at 3840x2160). Time vs pixels: the exponent of 720p -> 4k.
+
+    .venv/bin/python benchmarks/whole_process.py [--runs 5] [--cases 720p,berlin,4k] [--set KEY=VALUE ...]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+PAIRS = HERE.parent.parent / "shared" / "data" / "pairs"
+BERLIN = "dev_opensfm_berlin_01_02"
+SYNTHETIC_SIZES = {"720p": (1280, 720), "4k": (3840, 2160)}
+
+
+def _make_inputs(case: str, folder: Path) -> None:
+    """Runs in a child process: writes target.png, source.png, mask.png for ``case``."""
+    from speed import write_inputs, write_pair_files  # this folder is on sys.path when run as a script
+
+    if case == "berlin":
+        from geofill.evaluation.runner import load_pair, pair_mask
+
+        pair = load_pair(PAIRS / BERLIN)
+        write_pair_files(folder, pair.target, pair.source, pair_mask(pair, 0))
+    else:
+        write_inputs(SYNTHETIC_SIZES[case], None, folder)
+
+
+def _timed(cmd: list[str]) -> tuple[float, float]:
+    """(wall s, peak RSS MB) of one child process; raises if it fails."""
+    with tempfile.TemporaryFile() as err:
+        t0 = time.perf_counter()
+        proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=err)
+        _, status, usage = os.wait4(proc.pid, 0)
+        wall = time.perf_counter() - t0
+        proc.returncode = os.waitstatus_to_exitcode(status)
+        if proc.returncode:
+            err.seek(0)
+            text = err.read().decode(errors="replace").strip()[-500:]
+            raise RuntimeError(f"{' '.join(cmd)} failed ({proc.returncode}): {text}")
+    return wall, usage.ru_maxrss / 1024.0
+
+
+def _geofill() -> str:
+    return str(Path(sys.executable).parent / "geofill")
+
+
+def _paired(folder: Path, runs: int, overrides: list[str]) -> dict[str, list[float]]:
+    io = ["--target", str(folder / "target.png"), "--mask", str(folder / "mask.png")]
+    io += ["--source", str(folder / "source.png")]
+    sets = [x for s in overrides for x in ("--set", s)]
+    geo = [_geofill(), "fill", *io, "-o", str(folder / "geofill.png"), "--quiet", *sets]
+    base = [sys.executable, str(HERE / "homography_baseline.py"), *io, "-o", str(folder / "base.png")]
+    _timed(geo), _timed(base)  # warm-up
+    out: dict[str, list[float]] = {"geofill": [], "baseline": [], "ratio": [], "rss": [], "rss_base": []}
+    for _ in range(runs):
+        tg, rg = _timed(geo)
+        tb, rb = _timed(base)
+        out["geofill"].append(tg)
+        out["baseline"].append(tb)
+        out["ratio"].append(tg / tb)
+        out["rss"].append(rg)
+        out["rss_base"].append(rb)
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--runs", type=int, default=5)
+    ap.add_argument("--cases", default="720p,berlin,4k")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
+    ap.add_argument("--make-inputs", nargs=2, metavar=("CASE", "DIR"), help=argparse.SUPPRESS)
+    args = ap.parse_args(argv)
+    if args.make_inputs:
+        _make_inputs(args.make_inputs[0], Path(args.make_inputs[1]))
+        return 0
+    print(f"load average before: {' '.join(f'{v:.2f}' for v in os.getloadavg())} ({os.cpu_count()} cpus)")
+    for name, cmd in (("geofill --help", [_geofill(), "--help"]), ("geofill config", [_geofill(), "config"])):
+        _timed(cmd)
+        times = [_timed(cmd)[0] for _ in range(args.runs)]
+        print(f"{name:<16s} median {statistics.median(times):.3f} s  (runs {args.runs})")
+    medians: dict[str, float] = {}
+    print(
+        f"{'case':<8s}{'geofill s':>11s}{'baseline s':>12s}{'ratio':>8s}{'peak RSS MB':>13s}"
+        f"{'base RSS MB':>13s}  geofill runs"
+    )
+    for case in args.cases.split(","):
+        if case == "berlin" and not (PAIRS / BERLIN).is_dir():
+            print(f"{case:<8s} skipped: {PAIRS / BERLIN} not found")
+            continue
+        with tempfile.TemporaryDirectory() as tmp:
+            subprocess.run([sys.executable, __file__, "--make-inputs", case, tmp], check=True)
+            r = _paired(Path(tmp), args.runs, args.set)
+        med = {k: statistics.median(v) for k, v in r.items()}
+        medians[case] = med["geofill"]
+        print(
+            f"{case:<8s}{med['geofill']:11.3f}{med['baseline']:12.3f}{med['ratio']:8.2f}{med['rss']:13.0f}"
+            f"{med['rss_base']:13.0f}  {' '.join(f'{t:.2f}' for t in r['geofill'])}"
+        )
+    if "720p" in medians and "4k" in medians:
+        exponent = math.log(medians["4k"] / medians["720p"]) / math.log(9.0)
+        print(f"time grows as pixels^{exponent:.2f} (720p -> 4k, 9x the pixels)")
+    print(f"load average after: {' '.join(f'{v:.2f}' for v in os.getloadavg())}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,155 @@
+"""The pipeline stage: build the problem, run the configured solver, apply the guard rails, and
+return the geometry the render uses with a report."""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import asdict, dataclass, field, replace
+from typing import Any
+
+import numpy as np
+import torch
+
+from ..camera import Intrinsics, rotation_error_deg, translation_direction_error_deg
+from ..config import OptimizeConfig
+from ..depth.align import AlignedDepth, to_depth
+from .fast_solver import solve_fast
+from .objective import evaluate
+from .paper_solver import solve_paper
+from .params import PoseDepthParams
+from .problem import build_problem
+
+
+def guard(params: PoseDepthParams, initial: float, final: float) -> str:
+    """Why ``params`` must be rejected ('' when they are acceptable): NaN, a non-positive depth scale,
+    or an objective worse than the initial one."""
+    if not params.is_finite() or not math.isfinite(final):
+        return "optimisation produced NaN/inf parameters or objective"
+    if params.scale <= 0:
+        return f"optimisation produced a non-positive depth scale ({params.scale:.4g})"
+    if final > initial:
+        return f"optimised objective {final:.6g} is worse than the initial {initial:.6g}"
+    return ""
+
+
+@dataclass
+class OptimizationReport:
+    """What the optimisation did (units: degrees, seconds; objective values are dimensionless)."""
+
+    solver: str = ""
+    status: str = ""  # "accepted", "rejected" (initial parameters kept) or "skipped"
+    reason: str = ""
+    initial_objective: float = float("nan")
+    final_objective: float = float("nan")
+    initial_terms: dict[str, float] = field(default_factory=dict)
+    final_terms: dict[str, float] = field(default_factory=dict)
+    levels: list[dict[str, Any]] = field(default_factory=list)
+    params: dict[str, Any] = field(default_factory=dict)
+    rotation_change_deg: float = 0.0
+    translation_change_deg: float = 0.0
+    focal_target_px: float = float("nan")
+    focal_source_px: float = float("nan")
+    n_features: int = 0
+    seconds: float = 0.0
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    def summary(self) -> str:
+        if self.status == "skipped":
+            return f"skipped: {self.reason}"
+        its = "/".join(str(lv["iterations"]) for lv in self.levels)
+        text = (
+            f"{self.solver} {self.status}: objective {self.initial_objective:.4g} -> "
+            f"{self.final_objective:.4g} (iterations {its}), dR {self.rotation_change_deg:.2f} deg, "
+            f"dt {self.translation_change_deg:.2f} deg, scale {self.params.get('scale', 1.0):.3f}"
+        )
+        return text + (f"; {self.reason}" if self.reason else "")
+
+
+@dataclass
+class OptimizationResult:
+    """The geometry the render uses: pose, depth and intrinsics (working resolution), plus the report."""
+
+    T: np.ndarray
+    depth: AlignedDepth
+    K_target: Intrinsics
+    K_source: Intrinsics
+    params: PoseDepthParams
+    report: OptimizationReport
+
+
+def fit_space_values(depth: AlignedDepth) -> np.ndarray:
+    """The aligned depth in its fit space: z, or 1/z for an inverse-depth fit (NaN stays NaN)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return depth.depth if depth.space == "depth" else (1.0 / depth.depth).astype(np.float32)
+
+
+def optimize_pose_depth(
+    target: np.ndarray,
+    hole: np.ndarray,
+    source: np.ndarray,
+    K_t: Intrinsics,
+    K_s: Intrinsics,
+    T: np.ndarray,
+    depth: AlignedDepth,
+    pts_t: np.ndarray,
+    pts_s: np.ndarray,
+    cfg: OptimizeConfig,
+) -> OptimizationResult:
+    """Jointly refine the pose ``T`` (source->target, |t| kept) and the depth's scale/offset (and
+    optionally the focal lengths) for one pair at working resolution; see the module docstring.
+
+    ``target``/``source``: float32 RGB in [0, 1]; ``hole``: bool; ``pts_t``/``pts_s``: matched pixels
+    (the pose inliers). Rejected results keep the initial geometry, with the reason in the report."""
+    previous_threads = torch.get_num_threads()
+    torch.set_num_threads(max(1, cfg.threads))
+    try:
+        return _optimize(target, hole, source, K_t, K_s, T, depth, pts_t, pts_s, cfg)
+    finally:
+        torch.set_num_threads(previous_threads)
+
+
+def _optimize(target, hole, source, K_t, K_s, T, depth, pts_t, pts_s, cfg) -> OptimizationResult:
+    t0 = time.perf_counter()
+    init = PoseDepthParams(np.asarray(T[:3, :3], np.float64), np.asarray(T[:3, 3], np.float64).copy())
+    report = OptimizationReport(solver=cfg.solver)
+    unchanged = OptimizationResult(T, depth, K_t, K_s, init, report)
+    if float(np.linalg.norm(init.t)) == 0.0:
+        report.status, report.reason = "skipped", "no translation (rotation-only pose): depth is unobservable"
+        return unchanged
+    values = fit_space_values(depth)
+    problem = build_problem(target, hole, source, values, depth.space, K_t, K_s, pts_t, pts_s, cfg)
+    report.n_features = int(problem.features.q_t.shape[0])
+    initial = evaluate(problem, init)
+    problem.prior_ref = float(initial.total)
+    solve = solve_paper if cfg.solver == "paper" else solve_fast
+    params, logs = solve(problem, init)
+    final = evaluate(problem, params)
+    report.initial_objective, report.initial_terms = float(initial.total), initial.to_json()
+    report.final_objective, report.final_terms = float(final.total), final.to_json()
+    report.levels = [lg.to_json() for lg in logs]
+    report.reason = guard(params, float(initial.total), float(final.total))
+    report.status = "rejected" if report.reason else "accepted"
+    report.seconds = time.perf_counter() - t0
+    if report.reason:
+        report.params = init.to_json()
+        return unchanged
+    report.params = params.to_json()
+    report.rotation_change_deg = rotation_error_deg(init.R, params.R)
+    report.translation_change_deg = translation_direction_error_deg(init.t, params.t)
+    ef = math.exp(params.log_focal)
+    K_t2 = replace(K_t, fx=K_t.fx * ef, fy=K_t.fy * ef, origin="refined") if cfg.refine_focal else K_t
+    K_s2 = replace(K_s, fx=K_s.fx * ef, fy=K_s.fy * ef, origin="refined") if cfg.refine_focal else K_s
+    report.focal_target_px, report.focal_source_px = K_t2.fx, K_s2.fx
+    z, neg = to_depth(values, depth.space, params.scale, params.offset)
+    new_depth = replace(
+        depth,
+        depth=z,
+        scale=params.scale * depth.scale,
+        offset=params.scale * depth.offset + params.offset,
+        negative_fraction=neg,
+    )
+    report.seconds = time.perf_counter() - t0
+    return OptimizationResult(params.T, new_depth, K_t2, K_s2, params, report)
