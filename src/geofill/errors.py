@@ -74,3 +74,12 @@ class OutputError(GeoFillError):
     """An output path cannot be written (unsupported extension, missing or read-only folder, I/O error)."""
 
     exit_code = 4
+
+
+#: Exit status of a fill (or a batch with an item) that fell back to single-image inpainting
+#: without ``--allow-fallback``: the output is written, but not from the reference.
+EXIT_FELL_BACK = 5
+#: Exit status of a batch in which at least one item failed (its reason is in results.jsonl).
+EXIT_ITEMS_FAILED = 6
+#: Exit status after Ctrl-C (128 + SIGINT, the shell's convention).
+EXIT_INTERRUPTED = 130
