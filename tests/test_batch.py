@@ -181,3 +181,14 @@ def test_ctrl_c_keeps_finished_items_and_prints_the_summary(pairs, tmp_path):
         assert f.name == "results.jsonl" or (f.suffix == ".png" and _read_rgb(f).shape == (240, 320, 3)), (
             f.name
         )
+
+
+def test_ray_without_the_extra_is_a_one_line_error(pairs, tmp_path, monkeypatch, capsys):
+    root = _shoot(tmp_path, {"t3": pairs["t3"]})
+    monkeypatch.setitem(sys.modules, "ray", None)  # import ray raises ImportError, as when not installed
+    code = _batch(root, tmp_path / "out", "--sources-per-image", root / "refs", "--ray", "local")
+    assert code == 3
+    assert capsys.readouterr().err.strip().splitlines() == [
+        "geofill: error: --ray needs Ray: pip install 'geofill[ray]'"
+    ]
+    assert not (tmp_path / "out" / "results.jsonl").exists()

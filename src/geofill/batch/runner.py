@@ -19,6 +19,7 @@ from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wai
 from concurrent.futures.process import BrokenProcessPool
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
+from functools import partial
 from pathlib import Path
 from typing import Any, TextIO
 
@@ -96,6 +97,18 @@ def run_batch(
         raise OutputError(f"{out}: cannot create the output folder ({exc.strerror})") from exc
     if not os.access(out, os.W_OK | os.X_OK):
         raise OutputError(f"{out}: output folder is not writable")
+    with _executor(settings) as execute:  # Ray connects (or fails) before anything is written
+        return _run(items, base_config, settings, stream, execute)
+
+
+def _run(
+    items: Sequence[BatchItem],
+    base_config: FillConfig,
+    settings: BatchSettings,
+    stream: TextIO,
+    execute: Callable[[Sequence[Task], str, OnRecord], None],
+) -> BatchOutcome:
+    out = settings.out_dir
     results = out / RESULTS_NAME
     kept = _complete_records(items, out, results) if settings.resume else {}
     _rewrite_results(results, list(kept.values()))
@@ -124,10 +137,7 @@ def run_batch(
         t0 = time.perf_counter()
         interrupted = False
         try:
-            if settings.ray is None:
-                _run_local(tasks, settings.jobs, str(out), on_record)
-            else:
-                _run_ray(tasks, settings.ray, settings.jobs, str(out), on_record)
+            execute(tasks, str(out), on_record)
         except KeyboardInterrupt:
             interrupted = True
         finally:
@@ -201,7 +211,17 @@ def _environment(values: dict[str, str]) -> Iterator[None]:
                 os.environ[k] = v
 
 
-def _run_local(tasks: Sequence[Task], jobs: int, out_dir: str, on_record: OnRecord) -> None:
+@contextmanager
+def _executor(settings: BatchSettings) -> Iterator[Callable[[Sequence[Task], str, OnRecord], None]]:
+    """What runs the tasks: local worker processes, or Ray tasks in a Ray session open for the block."""
+    if settings.ray is None:
+        yield partial(_run_local, jobs=settings.jobs)
+        return
+    with _ray_session(settings.ray, settings.jobs) as ray:
+        yield partial(_run_ray, ray)
+
+
+def _run_local(tasks: Sequence[Task], out_dir: str, on_record: OnRecord, *, jobs: int) -> None:
     """``jobs`` spawned worker processes, one item each at a time. A worker that dies (killed, out
     of memory) fails the items in flight, which ``--resume`` runs again; the pool is replaced."""
     pending = list(reversed(tasks))
@@ -252,22 +272,36 @@ def _failed(item: BatchItem, cfg: FillConfig, out_dir: str, reason: str) -> dict
     return run_item(replace(item, error=f"{item.where}: {reason}"), cfg, out_dir)
 
 
-def _run_ray(tasks: Sequence[Task], address: str, jobs: int, out_dir: str, on_record: OnRecord) -> None:
-    """Every item as a Ray task (Ray schedules them and runs a task again when its worker dies);
-    worker processes are reused between tasks, so imports and compiled kernels stay warm. Workers
-    read the inputs from their paths and write the outputs themselves: the paths must be reachable
-    from every node (a shared file system)."""
+@contextmanager
+def _ray_session(address: str, jobs: int) -> Iterator[Any]:
+    """The ``ray`` module, connected to ``address`` (``local``: a new instance with ``jobs`` CPUs);
+    a session this opened is shut down after the block."""
     try:
         import ray
     except ImportError as exc:
         raise ConfigError("--ray needs Ray: pip install 'geofill[ray]'") from exc
-    started = not ray.is_initialized()
-    if started:
-        runtime_env = {"env_vars": SINGLE_THREAD_ENV}
-        if address == "local":
-            ray.init(num_cpus=jobs, runtime_env=runtime_env, include_dashboard=False, log_to_driver=False)
-        else:
+    if ray.is_initialized():
+        yield ray
+        return
+    runtime_env = {"env_vars": SINGLE_THREAD_ENV}
+    if address == "local":
+        ray.init(num_cpus=jobs, runtime_env=runtime_env, include_dashboard=False, log_to_driver=False)
+    else:
+        try:
             ray.init(address=address, runtime_env=runtime_env, log_to_driver=False)
+        except ConnectionError as exc:
+            raise ConfigError(f"--ray {address}: no Ray cluster to connect to ({exc})") from exc
+    try:
+        yield ray
+    finally:
+        ray.shutdown()
+
+
+def _run_ray(ray: Any, tasks: Sequence[Task], out_dir: str, on_record: OnRecord) -> None:
+    """Every item as a Ray task (Ray schedules them and runs a task again when its worker dies);
+    worker processes are reused between tasks, so imports and compiled kernels stay warm. Workers
+    read the inputs from their paths and write the outputs themselves: the paths must be reachable
+    from every node (a shared file system)."""
     remote = ray.remote(num_cpus=1, max_retries=RAY_MAX_RETRIES)(run_item_on_ray)
     refs = {remote.remote(item, cfg, out_dir): (item, cfg) for item, cfg in tasks}
     pending = list(refs)
@@ -285,6 +319,3 @@ def _run_ray(tasks: Sequence[Task], address: str, jobs: int, out_dir: str, on_re
         for ref in pending:
             ray.cancel(ref)
         raise
-    finally:
-        if started:
-            ray.shutdown()
