@@ -22,6 +22,8 @@ import numpy as np
 from ..config import FillConfig
 from ..errors import GeoFillError, InputError
 from ..io import LoadedImage, read_image, read_mask, validate_pair, write_image_atomic
+from ..merge import merge_fill
+from ..pipeline import fill
 from ..progress import Progress
 from .items import BatchItem
 
@@ -59,8 +61,6 @@ def fill_from_references(
 
     ``geofill.fill`` takes one reference for now: the first (the best, when they were picked) is
     used and a notice says so."""
-    from ..pipeline import fill
-
     first = references[0]
     notices = ()
     if len(references) > 1:
@@ -74,8 +74,6 @@ def fill_from_references(
 
 def _single_image(target: LoadedImage, hole: np.ndarray, cfg: FillConfig, prog: Progress) -> np.ndarray:
     """The whole hole by single-image inpainting, as the fill's fallback does (hole blanked first)."""
-    from ..merge import merge_fill
-
     with prog.stage("composite"):
         blanked = target.pixels.copy()
         blanked[hole] = 0
