@@ -10,12 +10,14 @@ copied). Every mode runs the same items in the same round, one after the other (
 odd rounds), so the modes are compared under the same machine load. Throughput counts the command's
 whole wall time (start-up, pool or Ray start, every fill). Per-item overhead: batches of
 ``--overhead-items`` and 5x as many items whose target is not an image (each fails at once in a
-worker), the slope of wall time against item count.
+worker), the slope of the time spent running the items against their count.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import io
 import json
 import os
 import statistics
@@ -29,6 +31,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from geofill.batch import BatchSettings, items_from_folders, run_batch
+from geofill.config import FillConfig
 from geofill.evaluation.runner import load_pair, pair_mask
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -41,8 +45,8 @@ MODES = {
 }
 
 OVERHEAD_RUNNERS = {
-    "local pool (--jobs 2)": ["--jobs", "2"],
-    "Ray (--ray local --jobs 2)": ["--ray", "local", "--jobs", "2"],
+    "local pool (--jobs 2)": {"jobs": 2},
+    "Ray (--ray local --jobs 2)": {"jobs": 2, "ray": "local"},
 }
 
 
@@ -95,7 +99,7 @@ def run_shell_loop(root: Path, names: list[str], out: Path) -> dict:
     return {"wall_s": wall, "items": len(names), "peak_rss_mib": max(rss), "workers": len(rss)}
 
 
-def run_batch(root: Path, out: Path, extra: list[str]) -> dict:
+def run_batch_command(root: Path, out: Path, extra: list[str]) -> dict:
     cmd = [*GEOFILL, "batch", "--images", str(root / "images"), "--masks", str(root / "masks")]
     cmd += ["--sources-per-image", str(root / "refs"), "--out", str(out), "-q", "--allow-fallback", *extra]
     wall, _ = _run(cmd)
@@ -113,58 +117,32 @@ def run_batch(root: Path, out: Path, extra: list[str]) -> dict:
     }
 
 
-def overhead(tmp: Path, n: int, extra: list[str]) -> float:
-    """Seconds per item of the machinery alone: the slope of wall time from n to 5n items whose
-    target is not an image (each fails at once in a worker)."""
+def overhead(tmp: Path, n: int, settings: dict) -> float:
+    """Seconds of batch time per item of the machinery alone: the slope of the time spent running
+    the items (Ray's start-up excluded) from n to 5n items whose target is not an image, each
+    failing at once in a worker."""
     walls = []
     for count in (n, 5 * n):
-        root = tmp / f"overhead_{count}_{extra[1]}"
+        root = tmp / f"overhead_{count}_{settings.get('ray')}"
         (root / "images").mkdir(parents=True)
-        (root / "refs").mkdir()
         for i in range(count):
             (root / "images" / f"x{i:04d}.png").write_bytes(b"not an image")
-            (root / "refs" / f"x{i:04d}").mkdir()
-            (root / "refs" / f"x{i:04d}" / "s.png").write_bytes(b"not an image")
         (root / "mask.png").write_bytes(b"")
-        cmd = [*GEOFILL, "batch", "--images", str(root / "images"), "--masks", str(root / "mask.png")]
-        cmd += ["--sources-per-image", str(root / "refs"), "--out", str(root / "out"), "-q", *extra]
-        t0 = time.perf_counter()
-        code = subprocess.run(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL).returncode
-        walls.append(time.perf_counter() - t0)
-        assert code == 6, f"expected every item to fail (exit 6), got {code}"
+        items = items_from_folders(root / "images", root / "mask.png", sources=root / "images")
+        batch_settings = BatchSettings(out_dir=root / "out", quiet=True, **settings)
+        with contextlib.redirect_stdout(io.StringIO()):
+            outcome = run_batch(items, FillConfig(), batch_settings, stream=io.StringIO())
+        assert outcome.exit_code == 6 and len(outcome.records) == count, "every item should fail (exit 6)"
+        walls.append(outcome.elapsed_s)
     return (walls[1] - walls[0]) / (4 * n)
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--pairs", type=Path, default=ROOT.parent / "shared" / "data" / "pairs")
-    ap.add_argument("--limit", type=int, help="first N DEV pairs only")
-    ap.add_argument("--rounds", type=int, default=1)
-    ap.add_argument("--modes", default=",".join(MODES), help="comma-separated subset of: " + ", ".join(MODES))
-    ap.add_argument("--overhead-items", type=int, default=20, help="0 = skip the overhead measurement")
-    args = ap.parse_args()
-    modes = [m.strip() for m in args.modes.split(",")]
-    pairs = dev_pairs(args.pairs)[: args.limit]
-    results: dict[str, list[dict]] = defaultdict(list)
-    with tempfile.TemporaryDirectory(prefix="batch_bench_") as tmp:
-        root = Path(tmp) / "shoot"
-        names = make_shoot(pairs, root)
-        load = [os.getloadavg()[0]]
-        for rnd in range(args.rounds):
-            for i, mode in enumerate(modes if rnd % 2 == 0 else modes[::-1]):
-                out = Path(tmp) / f"out_{rnd}_{i}"
-                extra = MODES[mode]
-                res = run_shell_loop(root, names, out) if extra is None else run_batch(root, out, extra)
-                results[mode].append(res)
-                load.append(os.getloadavg()[0])
-                print(f"round {rnd} {mode}: {json.dumps(res)}", file=sys.stderr, flush=True)
-        costs = {}
-        if args.overhead_items:
-            for label, extra in OVERHEAD_RUNNERS.items():
-                costs[label] = overhead(Path(tmp), args.overhead_items, extra)
+def print_throughput(
+    results: dict[str, list[dict]], modes: list[str], n_pairs: int, rounds: int, load: list[float]
+) -> None:
     base = statistics.median(60.0 * r["items"] / r["wall_s"] for r in results[modes[0]])
     print(
-        f"{len(names)} DEV pairs, {args.rounds} round(s), modes run back to back in each round on a shared "
+        f"{n_pairs} DEV pairs, {rounds} round(s), modes run back to back in each round on a shared "
         f"2-core machine (1-min load average {min(load):.1f}-{max(load):.1f} during the runs).\n"
     )
     print(
@@ -179,9 +157,42 @@ def main() -> None:
         print(f"| {mode} | {rate:.2f} | {rate / base:.2f} | {walls} | {rss:.0f} | {rs[0]['workers']} |")
     statuses = {mode: rs[0]["statuses"] for mode, rs in results.items() if "statuses" in rs[0]}
     print(f"\nItem statuses (first round): {json.dumps(statuses)}")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--pairs", type=Path, default=ROOT.parent / "shared" / "data" / "pairs")
+    ap.add_argument("--limit", type=int, help="first N DEV pairs only")
+    ap.add_argument("--rounds", type=int, default=1)
+    ap.add_argument("--modes", default=",".join(MODES), help="comma-separated subset of: " + ", ".join(MODES))
+    ap.add_argument("--overhead-items", type=int, default=40, help="0 = skip the overhead measurement")
+    args = ap.parse_args()
+    modes = [m.strip() for m in args.modes.split(",") if m.strip()]
+    pairs = dev_pairs(args.pairs)[: args.limit]
+    results: dict[str, list[dict]] = defaultdict(list)
+    with tempfile.TemporaryDirectory(prefix="batch_bench_") as tmp:
+        root = Path(tmp) / "shoot"
+        names = make_shoot(pairs, root)
+        load = [os.getloadavg()[0]]
+        for rnd in range(args.rounds):
+            for i, mode in enumerate(modes if rnd % 2 == 0 else modes[::-1]):
+                out = Path(tmp) / f"out_{rnd}_{i}"
+                extra = MODES[mode]
+                res = (
+                    run_shell_loop(root, names, out) if extra is None else run_batch_command(root, out, extra)
+                )
+                results[mode].append(res)
+                load.append(os.getloadavg()[0])
+                print(f"round {rnd} {mode}: {json.dumps(res)}", file=sys.stderr, flush=True)
+        costs = {}
+        if args.overhead_items:
+            for label, extra in OVERHEAD_RUNNERS.items():
+                costs[label] = overhead(Path(tmp), args.overhead_items, extra)
+    if modes:
+        print_throughput(results, modes, len(names), args.rounds, load)
     if costs:
         n = args.overhead_items
-        print(f"\nPer-item overhead (slope from {n} to {5 * n} items that fail at once):\n")
+        print(f"\nPer-item overhead (slope of run time from {n} to {5 * n} items that fail at once):\n")
         print("| runner | s per item |")
         print("| --- | --- |")
         for label, cost in costs.items():

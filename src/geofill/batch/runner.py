@@ -67,6 +67,7 @@ class BatchOutcome:
     kept: list[dict[str, Any]] = field(default_factory=list)
     interrupted: bool = False
     exit_code: int = 0
+    elapsed_s: float = 0.0  # running the items (after Ray connected; local workers start within it)
 
 
 def exit_status(statuses: Sequence[str], *, allow_fallback: bool, interrupted: bool) -> int:
@@ -158,7 +159,7 @@ def _run(
     )
     statuses = [r["status"] for r in [*kept.values(), *records]]
     code = exit_status(statuses, allow_fallback=settings.allow_fallback, interrupted=interrupted)
-    return BatchOutcome(records, list(kept.values()), interrupted, code)
+    return BatchOutcome(records, list(kept.values()), interrupted, code, elapsed)
 
 
 def _complete_records(items: Sequence[BatchItem], out: Path, results: Path) -> dict[str, dict[str, Any]]:
