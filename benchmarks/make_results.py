@@ -216,7 +216,7 @@ SECTIONS = [
         "The 18 DEV pairs as one batch (eval holes, seed 0): a shell loop of `geofill fill`, `geofill batch` "
         "with 1 and 2 worker processes and on a local Ray instance, run back to back on the same machine "
         "load; peak RSS per worker process; per-item overhead of the local pool and of Ray.",
-        [PY, "benchmarks/batch_bench.py", "--overhead-items", "10"],
+        [PY, "benchmarks/batch_bench.py"],
     ),
 ]
 
