@@ -276,6 +276,14 @@ SECTIONS = [
         "`optimize.refine_focal` (estimation off, so the refinement alone moves the focal).",
         [PY, "benchmarks/optimize_bench.py", "focal", "--scenes", "3", "--set", "intrinsics.estimate=none"],
     ),
+    Section(
+        "batch",
+        "Throughput of many fills (`benchmarks/batch_bench.py`)",
+        "The 18 DEV pairs as one batch (eval holes, seed 0): a shell loop of `geofill fill`, `geofill batch` "
+        "with 1 and 2 worker processes and on a local Ray instance, run back to back on the same machine "
+        "load; peak RSS per worker process; per-item overhead of the local pool and of Ray.",
+        [PY, "benchmarks/batch_bench.py"],
+    ),
 ]
 
 

@@ -1,5 +1,5 @@
-"""Command line: ``geofill fill``, ``geofill demo``, ``geofill eval``, ``geofill config``,
-``geofill models``.
+"""Command line: ``geofill fill``, ``geofill batch``, ``geofill demo``, ``geofill eval``,
+``geofill config``, ``geofill models``.
 
 Every user-facing problem is one line on stderr and a non-zero exit status, with nothing written.
 SIGTERM is turned into an exception, so an output being written is removed like on any error."""
@@ -7,14 +7,19 @@ SIGTERM is turned into an exception, so an output being written is removed like 
 from __future__ import annotations
 
 import argparse
+import os
 import signal
 import sys
 import typing
 from pathlib import Path
 
 from .config import PRESETS, FillConfig, parse_overrides
-from .errors import ConfigError, GeoFillError
+from .errors import EXIT_FELL_BACK, EXIT_ITEMS_FAILED, ConfigError, GeoFillError
 from .progress import Progress
+
+_ALLOW_FALLBACK_HELP = (
+    f"exit 0 even when a fill falls back to single-image inpainting (default: exit {EXIT_FELL_BACK})"
+)
 
 
 def _config_from_args(args: argparse.Namespace) -> FillConfig:
@@ -177,7 +182,44 @@ def cmd_fill(args: argparse.Namespace) -> int:
     prog.say(
         f"wrote {args.output}: hole of {r.hole_pixels} px filled {how} in {sum(r.timings_s.values()):.2f} s"
     )
-    return 0
+    if r.status == "reference" or args.allow_fallback:
+        return 0
+    # Said even with --quiet: a script must be able to tell this from a fill from the source.
+    print(
+        f"geofill: fell back to single-image inpainting ({'; '.join(r.fallbacks)}); "
+        f"exit status {EXIT_FELL_BACK} (--allow-fallback accepts it)",
+        file=sys.stderr,
+    )
+    return EXIT_FELL_BACK
+
+
+def cmd_batch(args: argparse.Namespace) -> int:
+    from .batch import BatchSettings, items_from_folders, read_manifest, run_batch
+
+    cfg = _config_from_args(args)
+    if args.manifest:
+        if args.images or args.masks or args.sources or args.sources_per_image:
+            raise ConfigError("--manifest names every file: give it without --images/--masks/--sources")
+        items = read_manifest(Path(args.manifest), cfg)
+    else:
+        if not (args.images and args.masks):
+            raise ConfigError("give --images and --masks (or a --manifest)")
+        items = items_from_folders(
+            Path(args.images),
+            Path(args.masks),
+            sources=Path(args.sources) if args.sources else None,
+            sources_per_image=Path(args.sources_per_image) if args.sources_per_image else None,
+            max_refs=args.max_refs,
+        )
+    settings = BatchSettings(
+        out_dir=Path(args.out),
+        jobs=args.jobs or len(os.sched_getaffinity(0)),
+        resume=args.resume,
+        allow_fallback=args.allow_fallback,
+        ray=args.ray,
+        quiet=args.quiet,
+    )
+    return run_batch(items, cfg, settings).exit_code
 
 
 def reference_paths(files: list[str], folder: str | None) -> list[Path]:
@@ -246,8 +288,45 @@ def build_parser() -> argparse.ArgumentParser:
         help="do not copy the target's EXIF (GPS included) and ICC profile into the output",
     )
     p.add_argument("-q", "--quiet", action="store_true", help="no progress messages")
+    p.add_argument("--allow-fallback", action="store_true", help=_ALLOW_FALLBACK_HELP)
     _add_config_flags(p)
     p.set_defaults(func=cmd_fill)
+
+    p = sub.add_parser(
+        "batch",
+        help="fill many images: folders matched by stem or a manifest; parallel, resumable, Ray",
+        description="Fill every image of --images (its mask: same stem in --masks, or one mask file for "
+        "all) or every row of --manifest, writing OUT/{stem}.png and OUT/results.jsonl. Exit status: 0 when "
+        f"every item was filled from a reference, {EXIT_FELL_BACK} when some fell back to single-image "
+        f"inpainting (unless --allow-fallback), {EXIT_ITEMS_FAILED} when some failed, 130 on Ctrl-C.",
+    )
+    p.add_argument("--images", metavar="DIR", help="folder of target images")
+    p.add_argument(
+        "--masks", metavar="DIR|FILE", help="folder of masks (matched by stem) or one mask for all"
+    )
+    refs = p.add_mutually_exclusive_group()
+    refs.add_argument(
+        "--sources", metavar="DIR", help="other photos of the shoot: the best --max-refs per target are used"
+    )
+    refs.add_argument("--sources-per-image", metavar="DIR", help="DIR/<stem>/ holds each image's references")
+    refs.add_argument(
+        "--manifest", metavar="FILE", help="CSV or JSONL: target, mask, sources, optional output and set"
+    )
+    p.add_argument("--out", required=True, metavar="DIR", help="output folder (created if missing)")
+    p.add_argument(
+        "--max-refs", type=int, default=3, metavar="N", help="references picked per target with --sources (3)"
+    )
+    p.add_argument("--jobs", type=int, metavar="N", help="worker processes (default: the number of cores)")
+    p.add_argument("--resume", action="store_true", help="skip items whose output is complete")
+    p.add_argument("--allow-fallback", action="store_true", help=_ALLOW_FALLBACK_HELP)
+    p.add_argument(
+        "--ray",
+        metavar="auto|ADDRESS|local",
+        help="run on a Ray cluster (extra geofill[ray]): auto = the running cluster, local = start one here",
+    )
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar or per-item lines")
+    _add_config_flags(p)
+    p.set_defaults(func=cmd_batch)
 
     p = sub.add_parser("demo", help="fill a self-generated synthetic scene and report its numbers")
     p.add_argument("--out", default="demo_out", help="output folder (default: demo_out)")

@@ -90,3 +90,13 @@ class ReferenceUnusable(Exception):
     """A reference photo cannot help this fill (too few matches, no reliable pose, no depth, it
     does not see the hole); the message is the reason shown to the user. The fill drops that
     reference and goes on with the others. Not a :class:`GeoFillError`: it never reaches the CLI."""
+
+
+#: Exit status of a fill (or a batch with an item) that fell back to single-image inpainting
+#: without ``--allow-fallback``: the output is written, but not from the reference.
+EXIT_FELL_BACK = 5
+#: Exit status of a batch in which at least one item failed (its reason is in results.jsonl);
+#: 6 is a fill's exceeded time budget.
+EXIT_ITEMS_FAILED = 7
+#: Exit status after Ctrl-C (128 + SIGINT, the shell's convention).
+EXIT_INTERRUPTED = 130

@@ -1,0 +1,80 @@
+"""Picking a target's references from the other photos of a shoot by measured overlap.
+
+A candidate's score is the number of its verified matches (:func:`geofill.matching.match_pair`:
+SIFT, ratio + mutual tests, fundamental matrix fitted with MAGSAC++) whose target keypoint lies
+within :data:`NEAR_HOLE_PX` of the hole. Matches near the hole are what the fill's pose and depth
+fit lean on where it matters; matches elsewhere say the photos overlap, not that the source sees
+what the hole hides. A candidate below the pose stage's own minimum (``geometry.min_inliers``
+verified matches) would fall back anyway, so it is never picked.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from ..config import FillConfig
+from ..io import LoadedImage
+from ..matching import match_pair
+from ..views import prepare_views
+
+#: Radius (px at a 1280-px long side, scaled with the working resolution) around the hole in which
+#: verified matches count towards a candidate's score.
+NEAR_HOLE_PX = 160.0
+
+
+@dataclass(frozen=True)
+class CandidateScore:
+    """How well one candidate reference overlaps the target around the hole."""
+
+    path: str
+    matches_near_hole: int  # verified matches within NEAR_HOLE_PX of the hole
+    matches_verified: int  # all verified matches
+    picked: bool
+
+    def to_dict(self) -> dict[str, object]:
+        return {
+            "source": self.path,
+            "matches_near_hole": self.matches_near_hole,
+            "matches_verified": self.matches_verified,
+            "picked": self.picked,
+        }
+
+
+def score_candidate(
+    target: np.ndarray, hole: np.ndarray, source: np.ndarray, cfg: FillConfig
+) -> tuple[int, int]:
+    """(verified matches near the hole, all verified matches) of ``source`` against ``target``,
+    both matched at the working resolution the fill uses."""
+    views = prepare_views(target, hole, source, cfg, None, None)
+    # Plain SIFT: ranking candidates must not climb the matching ladder (ASIFT) for each of them;
+    # the fill itself climbs it for the references picked.
+    plain = dataclasses.replace(cfg.matching, max_rung="sift")
+    matches = match_pair(views.target, views.source, views.hole, plain, views.px_scale)
+    if len(matches) == 0:
+        return 0, 0
+    # Distance (working px) of every pixel to the nearest hole pixel.
+    dist = cv2.distanceTransform(np.where(views.hole, 0, 255).astype(np.uint8), cv2.DIST_L2, 5)
+    h, w = dist.shape
+    xy = np.rint(matches.pts_target).astype(int)
+    near = dist[np.clip(xy[:, 1], 0, h - 1), np.clip(xy[:, 0], 0, w - 1)] <= NEAR_HOLE_PX * views.px_scale
+    return int(near.sum()), len(matches)
+
+
+def pick_references(
+    target: np.ndarray, hole: np.ndarray, candidates: Sequence[LoadedImage], cfg: FillConfig, max_refs: int
+) -> tuple[list[LoadedImage], list[CandidateScore]]:
+    """The best ``max_refs`` candidates by matches near the hole, best first, among those with at
+    least ``cfg.geometry.min_inliers`` of them (possibly none), and every candidate's score in the
+    given order."""
+    scored = [(score_candidate(target, hole, c.pixels, cfg), i) for i, c in enumerate(candidates)]
+    eligible = sorted(
+        (i for (near, _), i in scored if near >= cfg.geometry.min_inliers),
+        key=lambda i: (-scored[i][0][0], -scored[i][0][1], i),
+    )[:max_refs]
+    scores = [CandidateScore(candidates[i].path, near, total, i in eligible) for (near, total), i in scored]
+    return [candidates[i] for i in eligible], scores

@@ -1,0 +1,217 @@
+"""One batch item in a worker process: read its files, pick or take its references, fill, write
+the output atomically and return its record (a JSON-able dict, one line of results.jsonl).
+
+Whatever goes wrong with one item (a missing or corrupt file, a mask of another size, a fill that
+raises) is caught here and becomes a ``failed`` record with the reason; the batch goes on.
+"""
+
+from __future__ import annotations
+
+import os
+import resource
+import signal
+import time
+import traceback
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..config import FillConfig
+from ..errors import GeoFillError, InputError
+from ..inpaint import get_inpainter
+from ..io import LoadedImage, read_image, read_mask, validate_pair, write_image_atomic
+from ..merge import merge_fill
+from ..pipeline import fill
+from ..progress import Progress
+from .items import BatchItem
+
+#: Thread settings of a worker's libraries, set in its environment before they are imported: a
+#: batch runs one single-threaded fill per core, which beats threads inside one fill (most stages
+#: are not parallel, and the parallel ones scale poorly past one core).
+SINGLE_THREAD_ENV = {
+    "OMP_NUM_THREADS": "1",
+    "MKL_NUM_THREADS": "1",
+    "OPENBLAS_NUM_THREADS": "1",
+    "NUMBA_NUM_THREADS": "1",
+}
+
+STATUS_REFERENCE = "reference"
+STATUS_SINGLE_IMAGE = "single_image"
+STATUS_FAILED = "failed"
+
+
+@dataclass(frozen=True)
+class Filled:
+    """What the adapter returns: the image and what it was filled from."""
+
+    image: np.ndarray  # HxWx3 uint8
+    status: str  # STATUS_REFERENCE or STATUS_SINGLE_IMAGE
+    fallbacks: tuple[str, ...]
+    references: tuple[str, ...]  # paths of the references the fill was given
+    coverage: float  # fraction of the hole supplied by the references
+    notices: tuple[str, ...]
+
+
+def fill_from_references(
+    target: LoadedImage, hole: np.ndarray, references: Sequence[LoadedImage], cfg: FillConfig, prog: Progress
+) -> Filled:
+    """The one place a batch calls :func:`geofill.fill` (with every reference of the item) and
+    reads the hole coverage."""
+    result = fill(
+        target.pixels,
+        hole,
+        [r.pixels for r in references],
+        cfg,
+        target_exif=target.exif,
+        source_exifs=[r.exif for r in references],
+        progress=prog,
+    )
+    r = result.report
+    paths = tuple(ref.path for ref in references)
+    return Filled(result.image, r.status, tuple(r.fallbacks), paths, 1.0 - float(r.painted_fraction), ())
+
+
+def _single_image(target: LoadedImage, hole: np.ndarray, cfg: FillConfig, prog: Progress) -> np.ndarray:
+    """The whole hole by single-image inpainting, as the fill's fallback does (hole blanked first)."""
+    with prog.stage("composite"):
+        blanked = target.pixels.copy()
+        blanked[hole] = 0
+        return merge_fill(blanked, hole, None, None, get_inpainter(cfg.inpaint))
+
+
+def init_worker() -> None:
+    """Set up a local worker process: one thread per library; Ctrl-C is the parent's to handle
+    (it terminates the workers), and termination unwinds so no temporary file is left behind."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, _exit_on_terminate)
+    single_threaded()
+
+
+def _exit_on_terminate(signum: int, frame: Any) -> None:
+    raise SystemExit(128 + signum)
+
+
+def single_threaded() -> None:
+    """One thread for OpenCV, torch and numba in this process."""
+    import cv2
+    import numba
+    import torch
+
+    cv2.setNumThreads(1)
+    torch.set_num_threads(1)
+    numba.set_num_threads(1)
+
+
+def run_item(item: BatchItem, cfg: FillConfig, out_dir: str) -> dict[str, Any]:
+    """Fill ``item`` with ``cfg`` into ``out_dir`` and return its record; never raises for a
+    problem with the item itself (only for an interruption)."""
+    t0 = time.perf_counter()
+    prog = Progress(quiet=True)
+    record: dict[str, Any] = {
+        "item": item.name,
+        "where": item.where,
+        "target": item.target,
+        "mask": item.mask,
+        "output": str(Path(out_dir) / item.output) if item.output else "",
+        "status": STATUS_FAILED,
+        "references": [],
+        "fallback_reason": None,
+        "coverage": None,
+        "error": item.error or None,
+    }
+    if item.candidates:
+        record["candidates"] = []
+    if not item.error:
+        try:
+            _fill_item(item, cfg, record, prog)
+        except GeoFillError as exc:
+            record["error"] = str(exc)
+        except Exception as exc:  # a fill that raises must not stop the batch: record it
+            where = traceback.extract_tb(exc.__traceback__)[-1]
+            record["error"] = (
+                f"{item.where}: {type(exc).__name__}: {exc} (at {Path(where.filename).name}:{where.lineno})"
+            )
+    record["timings_s"] = {k: round(v, 4) for k, v in prog.timings.items()}
+    record["time_s"] = round(time.perf_counter() - t0, 4)
+    record["worker"] = {"pid": os.getpid(), "peak_rss_mib": round(_peak_rss_mib(), 1)}
+    return record
+
+
+def run_item_on_ray(item: BatchItem, cfg: FillConfig, out_dir: str) -> dict[str, Any]:
+    """:func:`run_item` as a Ray task: Ray workers are not set up by :func:`init_worker`."""
+    single_threaded()
+    return run_item(item, cfg, out_dir)
+
+
+def _fill_item(item: BatchItem, cfg: FillConfig, record: dict[str, Any], prog: Progress) -> None:
+    limits = {"max_pixels": cfg.max_pixels, "min_side": cfg.min_side_px}
+    notices: list[str] = []
+    with prog.stage("read"):
+        target = read_image(item.target, **limits)
+        mask = read_mask(item.mask, max_pixels=cfg.max_pixels)
+        if item.candidates:
+            # A photo of the shoot that cannot be read is no candidate; it does not fail the item.
+            pool = []
+            for path in item.candidates:
+                try:
+                    pool.append(read_image(path, **limits))
+                except GeoFillError as exc:
+                    notices.append(f"candidate skipped: {exc}")
+            if not pool:
+                raise InputError(
+                    f"{item.target}: none of the {len(item.candidates)} candidate references can be read"
+                )
+        else:
+            pool = [read_image(path, **limits) for path in item.sources]
+        hole = validate_pair(
+            target.pixels,
+            mask,
+            pool[0].pixels,
+            min_side=cfg.min_side_px,
+            max_pixels=cfg.max_pixels,
+            max_mask_fraction=cfg.max_mask_fraction,
+            names=(item.target, item.mask, pool[0].path),
+        )
+    if item.candidates:
+        from .references import pick_references
+
+        with prog.stage("select references"):
+            references, scores = pick_references(target.pixels, hole, pool, cfg, item.max_refs)
+        record["candidates"] = [s.to_dict() for s in scores]
+    else:
+        references = pool
+    if references:
+        filled = fill_from_references(target, hole, references, cfg, prog)
+        image, status, fallbacks, coverage = (
+            filled.image,
+            filled.status,
+            list(filled.fallbacks),
+            filled.coverage,
+        )
+        record["references"] = list(filled.references)
+        notices.extend(filled.notices)
+    else:
+        image = _single_image(target, hole, cfg, prog)
+        status, coverage = STATUS_SINGLE_IMAGE, 0.0
+        fallbacks = [
+            f"no candidate reference has {cfg.geometry.min_inliers} verified matches near the hole "
+            f"(best: {max(s['matches_near_hole'] for s in record['candidates'])})"
+        ]
+    with prog.stage("write"):
+        write_image_atomic(record["output"], image)
+    record.update(
+        status=status,
+        fallback_reason="; ".join(fallbacks) or None,
+        coverage=round(coverage, 4),
+        error=None,
+    )
+    if notices:
+        record["notices"] = notices
+
+
+def _peak_rss_mib() -> float:
+    """Peak resident memory of this process so far (ru_maxrss is in KiB on Linux)."""
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0

@@ -1,0 +1,194 @@
+"""``geofill batch`` end to end on rendered scenes: fills in worker processes, results.jsonl, resume,
+bad items among good ones, exit statuses, Ctrl-C; and the single fill's ``--allow-fallback`` rule."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+
+import cv2
+import numpy as np
+import pytest
+
+from geofill.batch.runner import exit_status
+from geofill.cli import main
+from geofill.errors import EXIT_FELL_BACK, EXIT_INTERRUPTED, EXIT_ITEMS_FAILED
+from geofill.synthetic import make_pair
+
+SEEDS = (3, 5)
+
+
+def _write_rgb(path, rgb):
+    path.parent.mkdir(parents=True, exist_ok=True)
+    assert cv2.imwrite(str(path), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+
+
+def _read_rgb(path):
+    return cv2.cvtColor(cv2.imread(str(path)), cv2.COLOR_BGR2RGB)
+
+
+def _noise(shape, seed=0):
+    return np.random.default_rng(seed).integers(0, 256, shape, dtype=np.uint8)
+
+
+@pytest.fixture(scope="module")
+def pairs():
+    return {f"t{s}": make_pair(seed=s, width=320, height=240) for s in SEEDS}
+
+
+def _shoot(root, pairs, names=None):
+    """images/, masks/ and refs/<stem>/ for the pairs (under the given names)."""
+    names = names or {name: name for name in pairs}
+    for name, key in names.items():
+        p = pairs[key]
+        _write_rgb(root / "images" / f"{name}.png", p.target)
+        (root / "masks").mkdir(parents=True, exist_ok=True)
+        assert cv2.imwrite(str(root / "masks" / f"{name}.png"), p.hole.astype(np.uint8) * 255)
+        _write_rgb(root / "refs" / name / "view.png", p.source)
+    return root
+
+
+def _batch(root, out, *extra):
+    argv = ["batch", "--images", root / "images", "--masks", root / "masks", "--out", out, *extra]
+    return main([str(a) for a in argv])
+
+
+def _records(out):
+    return [json.loads(line) for line in (out / "results.jsonl").read_text().splitlines()]
+
+
+def test_exit_status_precedence():
+    ok, fell, failed = "reference", "single_image", "failed"
+    assert exit_status([ok, ok], allow_fallback=False, interrupted=False) == 0
+    assert exit_status([ok, fell], allow_fallback=False, interrupted=False) == EXIT_FELL_BACK == 5
+    assert exit_status([ok, fell], allow_fallback=True, interrupted=False) == 0
+    assert exit_status([fell, failed], allow_fallback=True, interrupted=False) == EXIT_ITEMS_FAILED == 7
+    assert exit_status([ok], allow_fallback=True, interrupted=True) == EXIT_INTERRUPTED == 130
+
+
+def test_batch_fills_then_resumes_with_bad_items(pairs, tmp_path, capsys):
+    root, out = _shoot(tmp_path, pairs), tmp_path / "out"
+    code = _batch(root, out, "--sources-per-image", root / "refs", "--jobs", "2")
+    assert code == 0
+    first = {r["item"]: r for r in _records(out)}
+    assert set(first) == {"t3", "t5"}
+    for name, r in first.items():
+        p = pairs[name]
+        result = _read_rgb(out / f"{name}.png")
+        assert np.array_equal(result[~p.hole], p.target[~p.hole])
+        assert r["status"] == "reference" and r["error"] is None and r["fallback_reason"] is None
+        assert r["references"] == [str(root / "refs" / name / "view.png")]
+        assert r["coverage"] > 0.5
+        assert {"read", "match", "pose", "render", "composite", "write"} <= set(r["timings_s"])
+        assert r["worker"]["pid"] != os.getpid() and r["worker"]["peak_rss_mib"] > 50
+    assert "filled from a reference         2" in capsys.readouterr().out
+    mtimes = {name: (out / f"{name}.png").stat().st_mtime_ns for name in first}
+
+    # Bad items join the folder: a corrupt file, a mask of another size, an image without a mask.
+    (root / "images" / "corrupt.png").write_bytes(b"\x89PNG\r\n\x1a\n" + b"garbage" * 50)
+    shutil.copy(root / "masks" / "t3.png", root / "masks" / "corrupt.png")
+    _write_rgb(root / "refs" / "corrupt" / "view.png", pairs["t3"].source)
+    _write_rgb(root / "images" / "small.png", pairs["t3"].target[:200, :300])
+    shutil.copy(root / "masks" / "t3.png", root / "masks" / "small.png")
+    _write_rgb(root / "refs" / "small" / "view.png", pairs["t3"].source)
+    _write_rgb(root / "images" / "nomask.png", pairs["t5"].target)
+    code = _batch(root, out, "--sources-per-image", root / "refs", "--jobs", "2", "--resume")
+    assert code == EXIT_ITEMS_FAILED
+    records = _records(out)
+    by = {r["item"]: r for r in records}
+    assert len(records) == len(by) == 5  # one line per item
+    assert by["t3"] == first["t3"] and by["t5"] == first["t5"]  # kept, not run again
+    assert all((out / f"{n}.png").stat().st_mtime_ns == t for n, t in mtimes.items())
+    images = root / "images"
+    assert by["corrupt"]["status"] == "failed" and by["corrupt"]["error"].startswith(
+        f"{images / 'corrupt.png'}:"
+    )
+    assert by["small"]["error"] == (
+        f"{root / 'masks' / 'small.png'}: mask is 320x240 but the target {images / 'small.png'} is 300x200"
+    )
+    assert by["nomask"]["error"] == f"{images / 'nomask.png'}: no mask with stem 'nomask' in {root / 'masks'}"
+    assert not any((out / f"{n}.png").exists() for n in ("corrupt", "small", "nomask"))
+    summary = capsys.readouterr().out
+    assert "skipped (already complete)      2" in summary and "failed                          3" in summary
+
+
+def test_batch_fallbacks_exit_5_unless_allowed(pairs, tmp_path):
+    p = pairs["t3"]
+    root = _shoot(tmp_path, {"t3": p})
+    _write_rgb(root / "refs" / "t3" / "view.png", _noise(p.source.shape))  # a useless reference
+    out = tmp_path / "out"
+    assert _batch(root, out, "--sources-per-image", root / "refs", "--jobs", "1") == EXIT_FELL_BACK
+    (r,) = _records(out)
+    assert r["status"] == "single_image" and r["fallback_reason"] and r["coverage"] == 0.0
+    result = _read_rgb(out / "t3.png")
+    assert np.array_equal(result[~p.hole], p.target[~p.hole])
+    args = ("--sources-per-image", root / "refs", "--jobs", "1", "--allow-fallback")
+    assert _batch(root, tmp_path / "out2", *args) == 0
+
+    # --sources: the only candidate is noise, so none is picked and the hole is inpainted.
+    assert _batch(root, tmp_path / "out3", "--sources", root / "refs" / "t3", "--jobs", "1") == EXIT_FELL_BACK
+    (r,) = _records(tmp_path / "out3")
+    assert r["status"] == "single_image" and r["references"] == []
+    assert r["fallback_reason"].startswith("no candidate reference has 20 verified matches near the hole")
+    assert r["candidates"][0]["picked"] is False
+
+
+def test_single_fill_allow_fallback_rule(pairs, tmp_path, capsys):
+    p = pairs["t3"]
+    _write_rgb(tmp_path / "target.png", p.target)
+    _write_rgb(tmp_path / "noise.png", _noise(p.source.shape))
+    assert cv2.imwrite(str(tmp_path / "mask.png"), p.hole.astype(np.uint8) * 255)
+    argv = ["fill", "--target", tmp_path / "target.png", "--mask", tmp_path / "mask.png"]
+    argv += ["--source", tmp_path / "noise.png", "-q"]
+    code = main([str(a) for a in [*argv, "-o", tmp_path / "a.png"]])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == EXIT_FELL_BACK
+    assert (tmp_path / "a.png").is_file()  # the result is still written
+    assert len(err) == 1 and err[0].startswith("geofill: fell back to single-image inpainting (")
+    assert "exit status 5 (--allow-fallback accepts it)" in err[0]
+    assert main([str(a) for a in [*argv, "-o", tmp_path / "b.png", "--allow-fallback"]]) == 0
+    assert np.array_equal(_read_rgb(tmp_path / "a.png"), _read_rgb(tmp_path / "b.png"))
+
+
+def test_ctrl_c_keeps_finished_items_and_prints_the_summary(pairs, tmp_path):
+    names = {f"{key}_{i}": key for i in range(3) for key in pairs}  # 6 items
+    root, out = _shoot(tmp_path, pairs, names), tmp_path / "out"
+    cmd = [sys.executable, "-m", "geofill.cli", "batch", "--images", str(root / "images")]
+    cmd += ["--masks", str(root / "masks"), "--sources-per-image", str(root / "refs"), "--out", str(out)]
+    proc = subprocess.Popen([*cmd, "--jobs", "2"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    results = out / "results.jsonl"
+    deadline = time.monotonic() + 300
+    while not (results.is_file() and results.read_text().strip()) and time.monotonic() < deadline:
+        assert proc.poll() is None, proc.communicate()
+        time.sleep(0.2)
+    proc.send_signal(signal.SIGINT)
+    stdout, stderr = proc.communicate(timeout=60)
+    assert proc.returncode == EXIT_INTERRUPTED, stderr
+    records = _records(out)
+    assert 1 <= len(records) < len(names)
+    assert "INTERRUPTED" in stdout and "not run (interrupted)" in stdout
+    for r in records:
+        assert r["status"] == "reference"
+        p = pairs[names[r["item"]]]
+        assert np.array_equal(_read_rgb(r["output"])[~p.hole], p.target[~p.hole])
+    # Nothing half-written: every file left is results.jsonl or an image that decodes.
+    for f in out.iterdir():
+        assert f.name == "results.jsonl" or (f.suffix == ".png" and _read_rgb(f).shape == (240, 320, 3)), (
+            f.name
+        )
+
+
+def test_ray_without_the_extra_is_a_one_line_error(pairs, tmp_path, monkeypatch, capsys):
+    root = _shoot(tmp_path, {"t3": pairs["t3"]})
+    monkeypatch.setitem(sys.modules, "ray", None)  # import ray raises ImportError, as when not installed
+    code = _batch(root, tmp_path / "out", "--sources-per-image", root / "refs", "--ray", "local")
+    assert code == 3
+    assert capsys.readouterr().err.strip().splitlines() == [
+        "geofill: error: --ray needs Ray: pip install 'geofill[ray]'"
+    ]
+    assert not (tmp_path / "out" / "results.jsonl").exists()
