@@ -16,9 +16,9 @@ from typing import Any
 
 from fastapi import FastAPI, Request
 from fastapi.concurrency import run_in_threadpool
-from fastapi_offline import FastAPIOffline
 from fastapi.responses import FileResponse, JSONResponse, Response
 from fastapi.staticfiles import StaticFiles
+from fastapi_offline import FastAPIOffline
 from starlette.requests import ClientDisconnect
 
 from ..config import FillConfig
@@ -45,7 +45,11 @@ _FILL_FORM = {
                     "type": "object",
                     "required": ["target", "mask", "sources"],
                     "properties": {
-                        "target": {"type": "string", "format": "binary", "description": "photo with the hole"},
+                        "target": {
+                            "type": "string",
+                            "format": "binary",
+                            "description": "photo with the hole",
+                        },
                         "mask": {
                             "type": "string",
                             "format": "binary",

@@ -73,7 +73,9 @@ class Job:
         """The job as ``GET /api/v1/jobs/{id}`` shows it."""
         names = list(STAGES)
         position = names.index(self.stage) + 1 if self.stage in names else 0
-        progress = {"done": 1.0, "queued": 0.0}.get(self.state, (position - 1) / len(names) if position else 0)
+        progress = {"done": 1.0, "queued": 0.0}.get(
+            self.state, (position - 1) / len(names) if position else 0
+        )
         out: dict[str, Any] = {
             "id": self.id,
             "state": self.state,
@@ -286,7 +288,9 @@ class JobManager:
                 worker.kill()
                 with self._cv:
                     code = worker.process.exitcode
-                    self._finish(job, "failed", f"the worker process ended unexpectedly (exit {code})", "crash")
+                    self._finish(
+                        job, "failed", f"the worker process ended unexpectedly (exit {code})", "crash"
+                    )
                 return None
             if self._relay(job, msg):
                 return worker

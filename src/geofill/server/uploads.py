@@ -78,7 +78,9 @@ async def receive_fill_form(
                 raise UploadError(400, "the form field 'config' is given twice")
             return
         if name not in ("target", "mask", "sources"):
-            raise UploadError(400, f"unknown form field '{name[:40]}' (expected target, mask, sources, config)")
+            raise UploadError(
+                400, f"unknown form field '{name[:40]}' (expected target, mask, sources, config)"
+            )
         if not is_file:
             raise UploadError(400, f"the form field '{name}' must be a file")
         if name == "sources":
@@ -91,7 +93,7 @@ async def receive_fill_form(
             if role in out.files:
                 raise UploadError(400, f"the form field '{name}' is given twice")
         out.files[role] = folder / role  # a name the server chose, never the client's filename
-        sink: IO[bytes] = open(out.files[role], "wb")  # noqa: SIM115  (closed in on_part_end/finally)
+        sink: IO[bytes] = open(out.files[role], "wb")
         current["sink"] = sink
         current["label"] = name if name != "sources" else f"sources[{out.n_sources}]"
 

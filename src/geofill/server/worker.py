@@ -143,16 +143,20 @@ def coverage_summary(source_map: np.ndarray, n_sources: int) -> list[dict[str, A
     for k in range(1, n_sources + 1):
         rgb = REFERENCE_RGB[(k - 1) % len(REFERENCE_RGB)]
         rows.append({"label": f"reference {k}", "reference": k, "fraction": (source_map == k).sum() / hole})
-        rows[-1]["colour"] = "#%02x%02x%02x" % rgb
+        rows[-1]["colour"] = _hex(rgb)
     rows.append({"label": "painted", "reference": 0, "fraction": (source_map == 0).sum() / hole})
-    rows[-1]["colour"] = "#%02x%02x%02x" % PAINTED_RGB
+    rows[-1]["colour"] = _hex(PAINTED_RGB)
     for row in rows:
         row["fraction"] = float(row["fraction"])
     return rows
 
 
+def _hex(rgb: tuple[int, int, int]) -> str:
+    return "#" + "".join(f"{c:02x}" for c in rgb)
+
+
 def plain_summary(rows: Sequence[dict[str, Any]]) -> str:
-    """"94 % from reference 2, 6 % painted" (fillers with under 0.5 % of the hole left out)."""
+    """ "94 % from reference 2, 6 % painted" (fillers with under 0.5 % of the hole left out)."""
     parts = [
         f"{round(100 * r['fraction'])} % {'painted' if r['reference'] == 0 else 'from ' + r['label']}"
         for r in sorted(rows, key=lambda r: -r["fraction"])
