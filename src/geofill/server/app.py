@@ -9,7 +9,8 @@ import json
 import re
 import shutil
 import tempfile
-from collections.abc import AsyncIterator
+import time
+from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
 from pathlib import Path
 from typing import Any
@@ -107,8 +108,13 @@ def _field_names(message: str, folder: Path) -> str:
     return message.replace(str(folder / "target"), "target").replace(str(folder / "mask"), "mask")
 
 
-def create_app(settings: ServerSettings | None = None, base_config: FillConfig | None = None) -> FastAPI:
-    """The application; its lifespan owns the temporary folder and the worker pool."""
+def create_app(
+    settings: ServerSettings | None = None,
+    base_config: FillConfig | None = None,
+    clock: Callable[[], float] = time.monotonic,
+) -> FastAPI:
+    """The application; its lifespan owns the temporary folder and the worker pool (``app.state.jobs``
+    while it runs). ``clock`` (seconds) dates jobs for their expiry."""
     settings = settings or ServerSettings()
     base = (base_config or FillConfig()).updated({"max_pixels": settings.max_pixels})
     state: dict[str, Any] = {}
@@ -116,8 +122,8 @@ def create_app(settings: ServerSettings | None = None, base_config: FillConfig |
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         root = Path(tempfile.mkdtemp(prefix="geofill-serve-", dir=settings.temp_parent))
-        manager = JobManager(settings, root)
-        state["manager"] = manager
+        manager = JobManager(settings, root, clock)
+        state["manager"] = app.state.jobs = manager
         manager.start()
         try:
             yield

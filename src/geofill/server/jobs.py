@@ -135,6 +135,7 @@ class JobManager:
         self._stopped = threading.Event()  # wakes the expiry thread at shutdown
         self._ctx = multiprocessing.get_context("spawn")  # fork would copy the server's threads
         self._threads: list[threading.Thread] = []
+        self._workers: dict[str, _Worker] = {}  # slot thread name -> its current worker
 
     # ---- lifecycle
 
@@ -225,6 +226,11 @@ class JobManager:
                 self._delete(job)
             return len(old)
 
+    def worker_pids(self) -> list[int]:
+        """Process ids of the worker processes alive now."""
+        with self._cv:
+            return [w.process.pid for w in self._workers.values() if w.process.is_alive()]
+
     def counts(self) -> dict[str, int]:
         with self._cv:
             out: dict[str, int] = {}
@@ -252,15 +258,21 @@ class JobManager:
             return job
 
     def _slot_loop(self) -> None:
-        worker: _Worker | None = _Worker(self._ctx)  # started now so the first fill finds it warm
+        slot = threading.current_thread().name
+        worker: _Worker | None = self._new_worker(slot)  # started now: the first fill finds it warm
         try:
             while (job := self._take()) is not None:
-                if worker is None:
-                    worker = _Worker(self._ctx)
+                worker = worker or self._new_worker(slot)
                 worker = self._run(worker, job)
         finally:
             if worker is not None:
                 worker.stop()
+
+    def _new_worker(self, slot: str) -> _Worker:
+        worker = _Worker(self._ctx)
+        with self._cv:
+            self._workers[slot] = worker
+        return worker
 
     def _run(self, worker: _Worker, job: Job) -> _Worker | None:
         """Run ``job`` on ``worker``; return the worker if it can take another job."""

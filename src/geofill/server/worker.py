@@ -167,6 +167,8 @@ def plain_summary(rows: Sequence[dict[str, Any]]) -> str:
 
 def execute(spec: JobSpec, send: Callable[[tuple], None]) -> dict[str, Any]:
     """Run one job; write its result and coverage PNGs into its folder; return the summary."""
+    from PIL import Image
+
     from ..config import FillConfig
     from ..io import read_image, read_mask, write_image_atomic
 
@@ -191,7 +193,9 @@ def execute(spec: JobSpec, send: Callable[[tuple], None]) -> dict[str, Any]:
     )
     with prog.stage("write result"):
         write_image_atomic(folder / RESULT_FILE, outcome.image)
-        write_image_atomic(folder / COVERAGE_FILE, coverage_rgba(outcome.source_map))
+        # RGBA, which write_image_atomic (RGB outputs) does not write; the job is not done before
+        # this returns, so nobody reads a half-written file.
+        Image.fromarray(coverage_rgba(outcome.source_map)).save(folder / COVERAGE_FILE, compress_level=3)
     rows = coverage_summary(outcome.source_map, spec.n_sources)
     return {
         "status": outcome.status,
