@@ -84,7 +84,7 @@ def wait_for(
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
         snap = client.get(f"/api/v1/jobs/{job_id}").json()
-        if snap["state"] in states and snap["stage"].startswith(stage):
+        if snap["state"] in states and snap["stage"].startswith(stage):  # "" matches any stage
             return snap
         time.sleep(0.1)
     raise AssertionError(f"job still {snap['state']} after {timeout_s} s")
@@ -147,8 +147,8 @@ def test_cancel_terminates_the_running_worker(tmp_path, upload):
         assert client.get(f"/api/v1/jobs/{job_id}/result").status_code == 409
         # the slot has a fresh worker for the next job
         job2 = client.post("/api/v1/fill", files=files(upload), data={"config": config}).json()["id"]
-        assert wait_for(client, job2, states=("running",), timeout_s=120)["state"] == "running"
-        assert app.state.jobs.worker_pids() and app.state.jobs.worker_pids()[0] != pid
+        assert wait_for(client, job2, states=("running",), timeout_s=120, stage="match")["state"] == "running"
+        assert len(app.state.jobs.worker_pids()) == 1 and app.state.jobs.worker_pids()[0] != pid
         assert client.delete(f"/api/v1/jobs/{job2}").json()["state"] == "cancelled"
 
 
