@@ -84,7 +84,8 @@ def wait_for(
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
         snap = client.get(f"/api/v1/jobs/{job_id}").json()
-        if snap["state"] in states and snap["stage"].startswith(stage):  # "" matches any stage
+        reached = not stage or stage == snap["stage"] or stage in snap["stages_done"]
+        if snap["state"] in states and reached:
             return snap
         time.sleep(0.1)
     raise AssertionError(f"job still {snap['state']} after {timeout_s} s")
