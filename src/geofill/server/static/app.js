@@ -573,6 +573,7 @@ async function showResult(job) {
   $("split").value = 50;
   update();
   render();
+  $("result").scrollIntoView({ block: "nearest" });
 }
 
 async function keepEditing() {
