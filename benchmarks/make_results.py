@@ -210,6 +210,15 @@ SECTIONS = [
         "`optimize.refine_focal` (estimation off, so the refinement alone moves the focal).",
         [PY, "benchmarks/optimize_bench.py", "focal", "--scenes", "3", "--set", "intrinsics.estimate=none"],
     ),
+    Section(
+        "server",
+        "`geofill serve`: API overhead, memory, malformed requests (`benchmarks/server_bench.py`)",
+        "Over real HTTP against a `geofill serve` process with one worker: Fill -> result downloaded for a "
+        "1280x720 synthetic pair against the CLI's pipeline time for the same fill (interleaved: the machine "
+        "is shared, so only paired numbers compare); RSS of the server and its worker; 20 sequential fills; "
+        "200 malformed requests.",
+        [PY, "benchmarks/server_bench.py"],
+    ),
 ]
 
 
