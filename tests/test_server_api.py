@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import io
 import json
+import os
+import signal
 import time
 
 import numpy as np
@@ -133,7 +135,7 @@ def test_real_fill_through_the_api(tmp_path, upload, pair):
     assert list(tmp_path.iterdir()) == []  # the server's folder is gone with it
 
 
-def test_cancel_terminates_the_running_worker(tmp_path, upload):
+def test_cancel_terminates_the_running_worker_and_a_dead_worker_fails_its_job(tmp_path, upload):
     app = create_app(ServerSettings(workers=1, temp_parent=str(tmp_path)))
     with TestClient(app) as client:
         # the paper's solver runs for minutes: the job is surely still running when cancelled
@@ -149,8 +151,13 @@ def test_cancel_terminates_the_running_worker(tmp_path, upload):
         # the slot has a fresh worker for the next job
         job2 = client.post("/api/v1/fill", files=files(upload), data={"config": config}).json()["id"]
         assert wait_for(client, job2, states=("running",), timeout_s=120, stage="match")["state"] == "running"
-        assert len(app.state.jobs.worker_pids()) == 1 and app.state.jobs.worker_pids()[0] != pid
-        assert client.delete(f"/api/v1/jobs/{job2}").json()["state"] == "cancelled"
+        (pid2,) = app.state.jobs.worker_pids()
+        assert pid2 != pid
+        # a worker that dies (killed, out of memory) fails its job with the reason; nothing hangs
+        os.kill(pid2, signal.SIGKILL)
+        snap = wait_for(client, job2, timeout_s=60)
+        assert snap["state"] == "failed" and snap["error_kind"] == "crash"
+        assert snap["error"] == f"the worker process ended unexpectedly (exit {-signal.SIGKILL})"
 
 
 def test_queue_limit_is_429_with_retry_after(idle, upload):
