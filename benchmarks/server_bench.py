@@ -273,8 +273,10 @@ def main() -> None:
     work.mkdir()
     try:
         overhead(server, args.repeats, work)
-        sequential(server, args.fills)
-        malformed(server, args.malformed)
+        if args.fills:
+            sequential(server, args.fills)
+        if args.malformed:
+            malformed(server, args.malformed)
     finally:
         server.stop()
         shutil.rmtree(tmp, ignore_errors=True)
