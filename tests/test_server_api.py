@@ -135,6 +135,25 @@ def test_real_fill_through_the_api(tmp_path, upload, pair):
     assert list(tmp_path.iterdir()) == []  # the server's folder is gone with it
 
 
+def test_fallback_is_reported_with_its_reason(tmp_path):
+    pair = make_pair(seed=4, width=160, height=120)
+    parts = [
+        ("target", ("t.png", png(pair.target))),
+        ("mask", ("m.png", png(pair.hole.astype(np.uint8) * 255))),
+        ("sources", ("s.png", png(pair.source))),
+    ]
+    config = json.dumps({"render.min_hole_coverage": 1.01})  # no render can cover more than all
+    app = create_app(ServerSettings(workers=1, temp_parent=str(tmp_path)))
+    with TestClient(app) as client:
+        job_id = client.post("/api/v1/fill", files=parts, data={"config": config}).json()["id"]
+        snap = wait_for(client, job_id)
+        assert snap["state"] == "done" and snap["status"] == "single_image"
+        assert snap["fallbacks"][0].startswith("the source covers only")
+        assert snap["summary"] == "100 % painted"
+        out = np.array(Image.open(io.BytesIO(client.get(f"/api/v1/jobs/{job_id}/result").content)))
+        assert np.array_equal(out[~pair.hole], pair.target[~pair.hole])
+
+
 def test_cancel_terminates_the_running_worker_and_a_dead_worker_fails_its_job(tmp_path, upload):
     app = create_app(ServerSettings(workers=1, temp_parent=str(tmp_path)))
     with TestClient(app) as client:

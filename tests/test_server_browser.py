@@ -25,6 +25,7 @@ from PIL import Image
 from selenium import webdriver
 from selenium.webdriver.common.action_chains import ActionChains
 from selenium.webdriver.common.by import By
+from selenium.webdriver.common.keys import Keys
 from selenium.webdriver.support.ui import WebDriverWait
 
 from geofill.io import read_mask
@@ -142,13 +143,30 @@ def test_brush_fill_download_in_chromium(chromium, server, scene, tmp_path):
             return round((x - W / 2) * scale), round((y - H / 2) * scale)
 
         size = driver.find_element(By.ID, "brush-size")
-        driver.execute_script("arguments[0].value = 70; arguments[0].dispatchEvent(new Event('input'));", size)
+        driver.execute_script(
+            "arguments[0].value = 70; arguments[0].dispatchEvent(new Event('input'));", size
+        )
         chain = ActionChains(driver).move_to_element_with_offset(canvas, *offset(190, 180)).click_and_hold()
         for x in range(200, 300, 10):
             chain = chain.move_to_element_with_offset(canvas, *offset(x, 180))
         chain.release().perform()
 
-        driver.find_element(By.ID, "fill").click()
+        fill = driver.find_element(By.ID, "fill")
+        assert fill.is_enabled()
+        # keyboard: undo empties the hole, redo brings it back; + zooms, 0 fits again
+        keys = ActionChains(driver)
+        keys.key_down(Keys.CONTROL).send_keys("z").key_up(Keys.CONTROL).perform()
+        assert not fill.is_enabled()
+        keys.key_down(Keys.CONTROL).send_keys("y").key_up(Keys.CONTROL).perform()
+        assert fill.is_enabled()
+        zoom = driver.find_element(By.ID, "zoom-value")
+        fitted = zoom.text
+        ActionChains(driver).send_keys("+").perform()
+        assert int(zoom.text.split()[0]) > int(fitted.split()[0])
+        ActionChains(driver).send_keys("0").perform()
+        assert zoom.text == fitted
+
+        fill.click()
         WebDriverWait(driver, 600).until(
             lambda d: d.find_element(By.ID, "result").is_displayed() or d.find_element(By.ID, "message").text
         )
@@ -164,6 +182,11 @@ def test_brush_fill_download_in_chromium(chromium, server, scene, tmp_path):
         while time.monotonic() < deadline and not list(downloads.glob("*.png")):
             time.sleep(0.1)
         (path,) = list(downloads.glob("*.png"))
+
+        # keep editing from the result: the result becomes the photo, with an empty hole
+        driver.find_element(By.ID, "keep-editing").click()
+        wait.until(lambda d: not d.find_element(By.ID, "result").is_displayed())
+        assert not fill.is_enabled() and not driver.find_element(By.ID, "compare").is_displayed()
     finally:
         driver.quit()
 

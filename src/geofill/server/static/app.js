@@ -577,11 +577,7 @@ async function showResult(job) {
 }
 
 async function keepEditing() {
-  if (!state.result) return;
-  const refs = state.refs;
-  await setTarget(state.result.blob, "result.png");
-  state.refs = refs;
-  update();
+  if (state.result) await setTarget(state.result.blob, "result.png"); // references are kept
 }
 
 // ---------------------------------------------------------------- wiring
