@@ -219,6 +219,13 @@ SECTIONS = [
         "200 malformed requests.",
         [PY, "benchmarks/server_bench.py"],
     ),
+    Section(
+        "server_overhead",
+        "`geofill serve`: API against CLI time, more runs (`benchmarks/server_bench.py --repeats 6`)",
+        "The first part of the section above alone, six interleaved pairs: the machine's load moves single "
+        "runs by several seconds.",
+        [PY, "benchmarks/server_bench.py", "--repeats", "6", "--fills", "0", "--malformed", "0"],
+    ),
 ]
 
 
