@@ -24,8 +24,8 @@ from .worker import STAGES, JobSpec, worker_main
 
 #: Stage messages and notes kept per job (a runaway pipeline cannot grow a job without bound).
 MAX_NOTES = 200
-#: How often (s) a slot checks for Cancel while its worker is busy.
-POLL_S = 0.05
+#: How often (s) a slot checks for Cancel while its worker is busy (messages wake it at once).
+POLL_S = 0.2
 
 
 def default_workers() -> int:
