@@ -284,6 +284,22 @@ SECTIONS = [
         "load; peak RSS per worker process; per-item overhead of the local pool and of Ray.",
         [PY, "benchmarks/batch_bench.py"],
     ),
+    Section(
+        "server",
+        "`geofill serve`: API overhead, memory, malformed requests (`benchmarks/server_bench.py`)",
+        "Over real HTTP against a `geofill serve` process with one worker: Fill -> result downloaded for a "
+        "1280x720 synthetic pair against the CLI's pipeline time for the same fill (interleaved: the machine "
+        "is shared, so only paired numbers compare); RSS of the server and its worker; 20 sequential fills; "
+        "200 malformed requests.",
+        [PY, "benchmarks/server_bench.py"],
+    ),
+    Section(
+        "server_overhead",
+        "`geofill serve`: API against CLI time, more runs (`benchmarks/server_bench.py --repeats 6`)",
+        "The first part of the section above alone, six interleaved pairs: the machine's load moves single "
+        "runs by several seconds.",
+        [PY, "benchmarks/server_bench.py", "--repeats", "6", "--fills", "0", "--malformed", "0"],
+    ),
 ]
 
 

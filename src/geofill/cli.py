@@ -1,5 +1,5 @@
-"""Command line: ``geofill fill``, ``geofill batch``, ``geofill demo``, ``geofill eval``,
-``geofill config``, ``geofill models``.
+"""Command line: ``geofill fill``, ``geofill batch``, ``geofill serve``, ``geofill demo``,
+``geofill eval``, ``geofill config``, ``geofill models``.
 
 Every user-facing problem is one line on stderr and a non-zero exit status, with nothing written.
 SIGTERM is turned into an exception, so an output being written is removed like on any error."""
@@ -254,6 +254,41 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_serve(args: argparse.Namespace) -> int:
+    try:
+        import uvicorn
+
+        from .server.app import create_app
+        from .server.jobs import ServerSettings
+    except ImportError as exc:
+        raise GeoFillError(
+            f'geofill serve needs the server extra: pip install "geofill[server]" ({exc})'
+        ) from exc
+
+    cfg = FillConfig.from_json(args.config) if args.config else FillConfig()
+    overrides = parse_overrides(args.set)
+    cfg = cfg.updated(overrides) if overrides else cfg
+    defaults = ServerSettings()
+    settings = ServerSettings(
+        workers=args.workers or defaults.workers,
+        queue_size=args.queue,
+        job_ttl_s=args.job_ttl,
+        max_upload_bytes=int(args.max_upload_mb * 1024 * 1024),
+        max_request_bytes=int(args.max_upload_mb * 1024 * 1024) * (args.max_sources + 2),
+        max_pixels=args.max_pixels,
+        max_sources=args.max_sources,
+    )
+    url = f"http://{args.host}:{args.port}/"
+    print(f"geofill: serving on {url} ({settings.workers} worker(s); Ctrl+C to stop)", file=sys.stderr)
+    if args.open:
+        import threading
+        import webbrowser
+
+        threading.Timer(1.5, webbrowser.open, (url,)).start()
+    uvicorn.run(create_app(settings, cfg), host=args.host, port=args.port, log_level="warning")
+    return 0
+
+
 class _Parser(argparse.ArgumentParser):
     """argparse with its usage errors as one line (``--help`` still shows the usage)."""
 
@@ -333,6 +368,24 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("-q", "--quiet", action="store_true")
     p.set_defaults(func=cmd_demo)
+
+    p = sub.add_parser("serve", help="web page and REST API: brush the hole, add references, fill")
+    p.add_argument(
+        "--host", default="127.0.0.1", help="address to bind (default 127.0.0.1: this machine only)"
+    )
+    p.add_argument("--port", type=int, default=8080)
+    p.add_argument("--open", action="store_true", help="open the page in the default browser")
+    p.add_argument("--workers", type=int, help="fills at once (default: one per 2 cores)")
+    p.add_argument("--queue", type=int, default=8, help="jobs waiting at most before 429 (default 8)")
+    p.add_argument(
+        "--job-ttl", type=float, default=3600.0, metavar="S", help="job lifetime after it ends (s)"
+    )
+    p.add_argument("--max-upload-mb", type=float, default=50.0, help="largest uploaded file (MiB)")
+    p.add_argument("--max-pixels", type=int, default=40_000_000, help="largest image (pixels)")
+    p.add_argument("--max-sources", type=int, default=8, help="most reference photos per fill")
+    p.add_argument("--config", help="JSON config file: the defaults of every fill")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a default config key")
+    p.set_defaults(func=cmd_serve)
 
     p = sub.add_parser("config", help="print the configuration (defaults + overrides) as JSON")
     _add_config_flags(p)

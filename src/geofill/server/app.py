@@ -1,0 +1,296 @@
+"""The FastAPI application: the REST API under ``/api/v1``, the page at ``/``, OpenAPI at ``/docs``.
+
+Everything the page and the docs need is served by the app itself (no CDN): ``fastapi-offline``
+serves the Swagger UI files it ships, the page is plain HTML/JS/CSS in ``static/``."""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+import tempfile
+import time
+from collections.abc import AsyncIterator, Callable
+from contextlib import asynccontextmanager
+from pathlib import Path
+from typing import Any
+
+from fastapi import FastAPI, Request
+from fastapi.concurrency import run_in_threadpool
+from fastapi.responses import FileResponse, JSONResponse, Response
+from fastapi.staticfiles import StaticFiles
+from fastapi_offline import FastAPIOffline
+from starlette.requests import ClientDisconnect
+
+from ..config import FillConfig
+from ..errors import ConfigError, GeoFillError, ImageTooLargeError
+from .jobs import JobManager, QueueFullError, ServerSettings
+from .schema import LOCKED_KEYS, apply_request_config, config_fields, config_model
+from .uploads import UploadError, receive_fill_form
+from .worker import COVERAGE_FILE, RESULT_FILE, STAGES
+
+STATIC = Path(__file__).parent / "static"
+#: Job ids are ``secrets.token_urlsafe(24)``: anything else is unknown without a lookup.
+_JOB_ID = re.compile(r"^[A-Za-z0-9_-]{32}$")
+#: Seconds a client told 429 should wait: about one fill of a 1280x720 pair on 2 cores.
+RETRY_AFTER_S = 20
+#: The page loads nothing from elsewhere; blob: and data: are its own canvases and downloads.
+PAGE_CSP = "default-src 'self'; img-src 'self' blob: data:; style-src 'self'; script-src 'self'"
+
+_FILL_FORM = {
+    "requestBody": {
+        "required": True,
+        "content": {
+            "multipart/form-data": {
+                "schema": {
+                    "type": "object",
+                    "required": ["target", "mask", "sources"],
+                    "properties": {
+                        "target": {
+                            "type": "string",
+                            "format": "binary",
+                            "description": "photo with the hole",
+                        },
+                        "mask": {
+                            "type": "string",
+                            "format": "binary",
+                            "description": "hole mask, target's size: pixel >= 127 (or alpha) is hole",
+                        },
+                        "sources": {
+                            "type": "array",
+                            "items": {"type": "string", "format": "binary"},
+                            "description": "reference photos of the same scene (repeat the field)",
+                        },
+                        "config": {
+                            "type": "string",
+                            "description": "JSON object of FillConfig overrides, nested or dotted "
+                            '(e.g. {"depth": {"backend": "stereo"}}); see GET /api/v1/config',
+                        },
+                    },
+                }
+            }
+        },
+    }
+}
+
+
+def _error(status: int, message: str, headers: dict[str, str] | None = None) -> JSONResponse:
+    return JSONResponse({"detail": message}, status_code=status, headers=headers)
+
+
+def _job_id_ok(job_id: str) -> bool:
+    return bool(_JOB_ID.fullmatch(job_id))
+
+
+def _validate_inputs(folder: Path, files: dict[str, Path], cfg: FillConfig, max_pixels: int) -> None:
+    """Decode every upload and check the set as the CLI does; GeoFillError names the form field."""
+    from ..io import read_image, read_mask, validate_pair
+
+    target = read_image(files["target"], max_pixels=max_pixels, min_side=cfg.min_side_px).pixels
+    mask = read_mask(files["mask"], max_pixels=max_pixels)
+    for role in sorted(r for r in files if r.startswith("source-")):
+        source = read_image(files[role], max_pixels=max_pixels, min_side=cfg.min_side_px).pixels
+        validate_pair(
+            target,
+            mask,
+            source,
+            min_side=cfg.min_side_px,
+            max_pixels=max_pixels,
+            max_mask_fraction=cfg.max_mask_fraction,
+            names=("target", "mask", f"sources[{role.removeprefix('source-')}]"),
+        )
+
+
+def _field_names(message: str, folder: Path) -> str:
+    """A message about a file in ``folder`` with the file named by its form field."""
+    for k in range(64, 0, -1):
+        message = message.replace(str(folder / f"source-{k}"), f"sources[{k}]")
+    return message.replace(str(folder / "target"), "target").replace(str(folder / "mask"), "mask")
+
+
+def create_app(
+    settings: ServerSettings | None = None,
+    base_config: FillConfig | None = None,
+    clock: Callable[[], float] = time.monotonic,
+) -> FastAPI:
+    """The application; its lifespan owns the temporary folder and the worker pool (``app.state.jobs``
+    while it runs). ``clock`` (seconds) dates jobs for their expiry."""
+    settings = settings or ServerSettings()
+    base = (base_config or FillConfig()).updated({"max_pixels": settings.max_pixels})
+    state: dict[str, Any] = {}
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        root = Path(tempfile.mkdtemp(prefix="geofill-serve-", dir=settings.temp_parent))
+        manager = JobManager(settings, root, clock)
+        state["manager"] = app.state.jobs = manager
+        manager.start()
+        try:
+            yield
+        finally:
+            manager.stop()
+            shutil.rmtree(root, ignore_errors=True)
+
+    app = FastAPIOffline(
+        title="geofill",
+        summary="Reference-based image inpainting: fill a hole in a photo from other photos of the scene.",
+        version="1",
+        lifespan=lifespan,
+        redoc_url=None,
+    )
+    app.mount("/static", StaticFiles(directory=STATIC), name="static")
+
+    def manager() -> JobManager:
+        return state["manager"]
+
+    @app.get("/", include_in_schema=False)
+    async def page() -> FileResponse:
+        return FileResponse(STATIC / "index.html", headers={"Content-Security-Policy": PAGE_CSP})
+
+    @app.get("/api/v1/config", response_model=config_model(), summary="The server's default fill config")
+    async def get_config() -> dict[str, Any]:
+        """Every key a fill request's ``config`` may override, with its default and meaning."""
+        return base.to_dict()
+
+    @app.get("/api/v1/config/fields", summary="The fill config as a flat list of fields (for forms)")
+    async def get_fields() -> dict[str, Any]:
+        defaults = base.to_dict()
+        rows = []
+        for f in config_fields():
+            node: Any = defaults
+            for part in f.key.split("."):
+                node = node[part]
+            rows.append(
+                {
+                    "key": f.key,
+                    "section": f.section,
+                    "kind": f.kind,
+                    "default": node,
+                    "optional": f.optional,
+                    "choices": list(f.choices),
+                    "description": f.description,
+                    "locked": f.locked,
+                }
+            )
+        return {"fields": rows, "locked": sorted(LOCKED_KEYS)}
+
+    @app.get("/api/v1/limits", summary="Upload and queue limits of this server")
+    async def get_limits() -> dict[str, Any]:
+        return {
+            "max_upload_bytes": settings.max_upload_bytes,
+            "max_request_bytes": settings.max_request_bytes,
+            "max_pixels": settings.max_pixels,
+            "max_sources": settings.max_sources,
+            "queue_size": settings.queue_size,
+            "workers": settings.workers,
+            "job_ttl_s": settings.job_ttl_s,
+            "stages": STAGES,
+        }
+
+    @app.post(
+        "/api/v1/fill",
+        status_code=202,
+        openapi_extra=_FILL_FORM,
+        summary="Start a fill",
+        responses={
+            202: {"description": "queued; poll the job"},
+            400: {"description": "malformed request or input images"},
+            413: {"description": "an upload over a byte or pixel limit (named)"},
+            422: {"description": "bad config (the key is named)"},
+            429: {"description": "the queue is full; see Retry-After"},
+        },
+    )
+    async def post_fill(request: Request) -> JSONResponse:
+        """Upload ``target``, ``mask``, one or more ``sources`` and an optional ``config`` JSON; the
+        fill runs in the background. Poll ``GET /api/v1/jobs/{id}``."""
+        jobs = manager()
+        busy = {"Retry-After": str(RETRY_AFTER_S)}
+        if not jobs.has_room():
+            return _error(429, "the queue is full; try again later", busy)
+        length = request.headers.get("content-length")
+        if length is not None and (not length.isdigit() or int(length) > settings.max_request_bytes):
+            return _error(413, f"the request is larger than the limit of {settings.max_request_bytes} bytes")
+        folder = jobs.new_folder()
+        try:
+            form = await receive_fill_form(
+                request.stream(),
+                request.headers.get("content-type", ""),
+                folder,
+                max_file_bytes=settings.max_upload_bytes,
+                max_request_bytes=settings.max_request_bytes,
+                max_sources=settings.max_sources,
+            )
+            try:
+                overrides = json.loads(form.config_text) if form.config_text else {}
+            except json.JSONDecodeError as exc:
+                raise UploadError(422, f"config: not valid JSON ({exc})") from exc
+            cfg = apply_request_config(base, overrides)
+            await run_in_threadpool(_validate_inputs, folder, form.files, cfg, settings.max_pixels)
+            job = jobs.submit(folder, form.n_sources, cfg.to_dict())
+        except UploadError as exc:
+            shutil.rmtree(folder, ignore_errors=True)
+            return _error(exc.status, str(exc))
+        except ConfigError as exc:
+            shutil.rmtree(folder, ignore_errors=True)
+            return _error(422, str(exc))
+        except ImageTooLargeError as exc:
+            shutil.rmtree(folder, ignore_errors=True)
+            return _error(413, _field_names(str(exc), folder) + f" (max_pixels {settings.max_pixels})")
+        except GeoFillError as exc:
+            shutil.rmtree(folder, ignore_errors=True)
+            return _error(400, _field_names(str(exc), folder))
+        except QueueFullError:
+            shutil.rmtree(folder, ignore_errors=True)
+            return _error(429, "the queue is full; try again later", busy)
+        except ClientDisconnect:
+            shutil.rmtree(folder, ignore_errors=True)
+            return _error(400, "the client went away during the upload")
+        return JSONResponse(
+            {"id": job.id, "state": job.state, "url": f"/api/v1/jobs/{job.id}"},
+            status_code=202,
+            headers={"Location": f"/api/v1/jobs/{job.id}"},
+        )
+
+    def _unknown() -> JSONResponse:
+        return _error(404, "no such job (it may have expired)")
+
+    @app.get("/api/v1/jobs/{job_id}", summary="State, stage, progress; the report when done")
+    async def get_job(job_id: str) -> JSONResponse:
+        snap = manager().snapshot(job_id) if _job_id_ok(job_id) else None
+        return _unknown() if snap is None else JSONResponse(snap)
+
+    def _job_file(job_id: str, name: str) -> Response:
+        job = manager().get(job_id) if _job_id_ok(job_id) else None
+        if job is None:
+            return _unknown()
+        if job.state != "done":
+            return _error(409, f"the job is {job.state}, it has no result")
+        path = job.folder / name
+        if not path.is_file():  # expired between the lookup and now
+            return _unknown()
+        return FileResponse(path, media_type="image/png", headers={"Cache-Control": "no-store"})
+
+    @app.get(
+        "/api/v1/jobs/{job_id}/result",
+        summary="The filled image (PNG, full resolution)",
+        response_class=FileResponse,
+        responses={200: {"content": {"image/png": {}}}, 404: {}, 409: {}},
+    )
+    async def get_result(job_id: str) -> Response:
+        return _job_file(job_id, RESULT_FILE)
+
+    @app.get(
+        "/api/v1/jobs/{job_id}/coverage",
+        summary="Who filled each hole pixel (RGBA PNG: a colour per reference, red = painted)",
+        response_class=FileResponse,
+        responses={200: {"content": {"image/png": {}}}, 404: {}, 409: {}},
+    )
+    async def get_coverage(job_id: str) -> Response:
+        return _job_file(job_id, COVERAGE_FILE)
+
+    @app.delete("/api/v1/jobs/{job_id}", summary="Cancel a job (or delete a finished one now)")
+    async def delete_job(job_id: str) -> JSONResponse:
+        snap = await run_in_threadpool(manager().cancel, job_id) if _job_id_ok(job_id) else None
+        return _unknown() if snap is None else JSONResponse(snap)
+
+    return app

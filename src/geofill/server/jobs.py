@@ -1,0 +1,332 @@
+"""Fill jobs: a bounded queue, a bounded pool of reusable worker processes, per-job folders inside
+the server's own temporary folder, cancellation and expiry.
+
+One thread per worker slot takes the oldest queued job, hands it to its worker process and relays
+the process's stage messages into the job until it is done; Cancel (or shutdown) terminates the
+process, and the slot starts a fresh one."""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+import secrets
+import shutil
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from multiprocessing.connection import wait
+from pathlib import Path
+from typing import Any
+
+from .worker import STAGES, JobSpec, worker_main
+
+#: Stage messages and notes kept per job (a runaway pipeline cannot grow a job without bound).
+MAX_NOTES = 200
+#: How often (s) a slot checks for Cancel while its worker is busy (messages wake it at once).
+POLL_S = 0.2
+
+
+def default_workers() -> int:
+    """One fill per 2 cores: the pipeline's OpenCV/numba/torch stages use about two cores each."""
+    return max(1, (os.cpu_count() or 2) // 2)
+
+
+@dataclass(frozen=True)
+class ServerSettings:
+    """Limits of one server. Sizes in bytes, times in seconds, images in pixels (width x height)."""
+
+    workers: int = field(default_factory=default_workers)
+    queue_size: int = 8  # jobs waiting for a worker; more is a 429
+    job_ttl_s: float = 3600.0  # a finished job and its files are deleted this long after it ends
+    max_upload_bytes: int = 50 * 1024 * 1024  # per uploaded file
+    max_request_bytes: int = 200 * 1024 * 1024  # a whole POST body
+    max_pixels: int = 40_000_000  # per image (target, mask, each reference)
+    max_sources: int = 8
+    temp_parent: str | None = None  # where the server's own temporary folder is made (None: system's)
+
+
+class QueueFullError(Exception):
+    """The queue holds ``queue_size`` jobs already."""
+
+
+@dataclass
+class Job:
+    """One fill request and what is known about it; changed only under the manager's lock."""
+
+    id: str
+    folder: Path
+    spec: JobSpec
+    created: float
+    state: str = "queued"  # queued | running | done | failed | cancelled
+    stage: str = ""
+    stages_seen: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+    summary: dict[str, Any] | None = None
+    error: str | None = None
+    error_kind: str | None = None
+    finished: float | None = None
+    cancel: threading.Event = field(default_factory=threading.Event)
+
+    def public(self) -> dict[str, Any]:
+        """The job as ``GET /api/v1/jobs/{id}`` shows it."""
+        names = list(STAGES)
+        position = names.index(self.stage) + 1 if self.stage in names else 0
+        progress = {"done": 1.0, "queued": 0.0}.get(
+            self.state, (position - 1) / len(names) if position else 0
+        )
+        out: dict[str, Any] = {
+            "id": self.id,
+            "state": self.state,
+            "stage": self.stage,
+            "stage_text": STAGES.get(self.stage, self.stage),
+            "stages_done": [s for s in self.stages_seen if s != self.stage or self.state != "running"],
+            "progress": round(progress, 3),
+            "notes": list(self.notes),
+            "error": self.error,
+            "error_kind": self.error_kind,
+        }
+        if self.summary is not None:
+            out.update(self.summary)
+        return out
+
+
+class _Worker:
+    """A worker process and the parent's end of its pipe."""
+
+    def __init__(self, ctx: multiprocessing.context.BaseContext) -> None:
+        self.conn, child = ctx.Pipe()
+        self.process = ctx.Process(target=worker_main, args=(child,), daemon=True, name="geofill-fill")
+        self.process.start()
+        child.close()
+
+    def kill(self) -> None:
+        self.process.terminate()
+        self.process.join(5)
+        if self.process.is_alive():
+            self.process.kill()
+            self.process.join()
+        self.conn.close()
+
+    def stop(self) -> None:
+        try:
+            self.conn.send(None)
+        except OSError:
+            pass
+        self.process.join(2)
+        if self.process.is_alive():
+            self.kill()
+        else:
+            self.conn.close()
+
+
+class JobManager:
+    """Queue, workers, job folders under ``root`` (created by the caller, owned by the manager)."""
+
+    def __init__(self, settings: ServerSettings, root: Path, clock: Callable[[], float] = time.monotonic):
+        self.settings = settings
+        self.root = root
+        self.clock = clock
+        self._jobs: dict[str, Job] = {}
+        self._queue: deque[Job] = deque()
+        self._cv = threading.Condition()
+        self._stopping = False
+        self._stopped = threading.Event()  # wakes the expiry thread at shutdown
+        self._ctx = multiprocessing.get_context("spawn")  # fork would copy the server's threads
+        self._threads: list[threading.Thread] = []
+        self._workers: dict[str, _Worker] = {}  # slot thread name -> its current worker
+
+    # ---- lifecycle
+
+    def start(self) -> None:
+        for i in range(self.settings.workers):
+            t = threading.Thread(target=self._slot_loop, name=f"geofill-slot-{i}", daemon=True)
+            t.start()
+            self._threads.append(t)
+        reaper = threading.Thread(target=self._reap_loop, name="geofill-expiry", daemon=True)
+        reaper.start()
+        self._threads.append(reaper)
+
+    def stop(self) -> None:
+        """Cancel everything, stop the workers, delete every job folder."""
+        with self._cv:
+            self._stopping = True
+            self._stopped.set()
+            for job in self._jobs.values():
+                job.cancel.set()
+            self._cv.notify_all()
+        for t in self._threads:
+            t.join(10)
+        with self._cv:
+            for job in list(self._jobs.values()):
+                self._delete(job)
+
+    # ---- requests
+
+    def new_folder(self) -> Path:
+        """A fresh folder for an upload in progress, named randomly inside the server's folder."""
+        folder = self.root / f"upload-{secrets.token_hex(8)}"
+        folder.mkdir()
+        return folder
+
+    def has_room(self) -> bool:
+        with self._cv:
+            return len(self._queue) < self.settings.queue_size
+
+    def submit(self, folder: Path, n_sources: int, config: dict[str, Any]) -> Job:
+        """Queue a job whose inputs are in ``folder`` (moved into the job's own folder)."""
+        with self._cv:
+            if len(self._queue) >= self.settings.queue_size or self._stopping:
+                raise QueueFullError(f"{len(self._queue)} jobs are waiting already")
+            job_id = secrets.token_urlsafe(24)  # 192 random bits: not guessable
+            job_folder = self.root / job_id
+            folder.rename(job_folder)
+            job = Job(job_id, job_folder, JobSpec(str(job_folder), n_sources, config), self.clock())
+            self._jobs[job_id] = job
+            self._queue.append(job)
+            self._cv.notify_all()
+            return job
+
+    def get(self, job_id: str) -> Job | None:
+        with self._cv:
+            return self._jobs.get(job_id)
+
+    def snapshot(self, job_id: str) -> dict[str, Any] | None:
+        with self._cv:
+            job = self._jobs.get(job_id)
+            return None if job is None else job.public()
+
+    def cancel(self, job_id: str) -> dict[str, Any] | None:
+        """Cancel a queued or running job; delete a finished one now. None if unknown."""
+        with self._cv:
+            job = self._jobs.get(job_id)
+            if job is None:
+                return None
+            if job.state == "queued":
+                self._queue.remove(job)
+                self._finish(job, "cancelled")
+            elif job.state == "running":
+                job.cancel.set()  # the slot terminates the worker and marks the job cancelled
+                self._cv.wait_for(lambda: job.state != "running", timeout=10)
+            else:
+                self._delete(job)
+            return job.public()
+
+    def expire(self) -> int:
+        """Delete jobs that finished ``job_ttl_s`` ago or more; return how many."""
+        with self._cv:
+            now = self.clock()
+            old = [
+                j
+                for j in self._jobs.values()
+                if j.finished is not None and now - j.finished >= self.settings.job_ttl_s
+            ]
+            for job in old:
+                self._delete(job)
+            return len(old)
+
+    def worker_pids(self) -> list[int]:
+        """Process ids of the worker processes alive now."""
+        with self._cv:
+            return [w.process.pid for w in self._workers.values() if w.process.is_alive()]
+
+    def counts(self) -> dict[str, int]:
+        with self._cv:
+            out: dict[str, int] = {}
+            for job in self._jobs.values():
+                out[job.state] = out.get(job.state, 0) + 1
+            return out
+
+    # ---- internals (the lock is held by callers of _finish and _delete)
+
+    def _finish(self, job: Job, state: str, error: str | None = None, kind: str | None = None) -> None:
+        job.state, job.error, job.error_kind, job.finished = state, error, kind, self.clock()
+        self._cv.notify_all()
+
+    def _delete(self, job: Job) -> None:
+        self._jobs.pop(job.id, None)
+        shutil.rmtree(job.folder, ignore_errors=True)
+
+    def _take(self) -> Job | None:
+        with self._cv:
+            self._cv.wait_for(lambda: self._queue or self._stopping)
+            if self._stopping:
+                return None
+            job = self._queue.popleft()
+            job.state = "running"
+            return job
+
+    def _slot_loop(self) -> None:
+        slot = threading.current_thread().name
+        worker: _Worker | None = self._new_worker(slot)  # started now: the first fill finds it warm
+        try:
+            while (job := self._take()) is not None:
+                worker = worker or self._new_worker(slot)
+                worker = self._run(worker, job)
+        finally:
+            if worker is not None:
+                worker.stop()
+
+    def _new_worker(self, slot: str) -> _Worker:
+        worker = _Worker(self._ctx)
+        with self._cv:
+            self._workers[slot] = worker
+        return worker
+
+    def _run(self, worker: _Worker, job: Job) -> _Worker | None:
+        """Run ``job`` on ``worker``; return the worker if it can take another job."""
+        try:
+            worker.conn.send(job.spec)
+        except OSError:
+            pass  # a dead worker shows as such below
+        while True:
+            if job.cancel.is_set():
+                worker.kill()
+                with self._cv:
+                    self._finish(job, "cancelled")
+                return None
+            ready = wait([worker.conn, worker.process.sentinel], timeout=POLL_S)
+            if worker.conn in ready:
+                try:
+                    msg = worker.conn.recv()
+                except (EOFError, OSError):
+                    msg = None
+            elif ready:  # the process ended without a word
+                msg = None
+            else:
+                continue
+            if msg is None:
+                worker.kill()
+                with self._cv:
+                    code = worker.process.exitcode
+                    self._finish(
+                        job, "failed", f"the worker process ended unexpectedly (exit {code})", "crash"
+                    )
+                return None
+            if self._relay(job, msg):
+                return worker
+
+    def _relay(self, job: Job, msg: tuple) -> bool:
+        """Apply one worker message to ``job``; True when the job has ended."""
+        kind = msg[0]
+        with self._cv:
+            if kind == "stage":
+                job.stage = msg[1]
+                job.stages_seen.append(msg[1])
+            elif kind == "note" and len(job.notes) < MAX_NOTES:
+                job.notes.append(msg[1].replace(f"{job.folder}{os.sep}", ""))
+            elif kind == "done":
+                job.summary = msg[1]
+                job.stage = ""
+                self._finish(job, "done")
+                return True
+            elif kind == "failed":
+                self._finish(job, "failed", msg[2].replace(f"{job.folder}{os.sep}", ""), msg[1])
+                return True
+        return False
+
+    def _reap_loop(self) -> None:
+        period = min(max(self.settings.job_ttl_s / 4, 0.05), 30.0)
+        while not self._stopped.wait(period):
+            self.expire()

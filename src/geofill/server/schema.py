@@ -1,0 +1,159 @@
+"""The fill configuration as the server shows it: one flat list of fields, and a pydantic model for
+the OpenAPI page, both derived from :class:`geofill.config.FillConfig` (its types, defaults and
+``#:`` comments), so that nothing is copied by hand and a new config key appears everywhere.
+
+Validation is not done here: a request's config goes through ``FillConfig.updated`` like the CLI's
+``--set``, so the server accepts exactly what the CLI accepts and its errors name the same keys."""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import inspect
+import re
+import types
+import typing
+from dataclasses import dataclass
+from typing import Any, Literal
+
+from ..config import FillConfig
+from ..errors import ConfigError
+
+#: Keys a request may not set: they name files or allow downloads on the server's machine, which only
+#: whoever starts the server decides (``geofill serve --config/--set``). ``max_pixels`` is the server's
+#: upload limit.
+LOCKED_KEYS = frozenset(
+    {
+        "depth.file_path",
+        "depth.model_path",
+        "depth.download",
+        "inpaint.lama_model",
+        "inpaint.download",
+        "max_pixels",
+    }
+)
+
+_FIELD_LINE = re.compile(r"^\s*(\w+)\s*:")
+
+
+@dataclass(frozen=True)
+class ConfigField:
+    """One leaf of the configuration, as the page's advanced options show it."""
+
+    key: str  # dotted, e.g. "depth.backend"
+    kind: str  # "bool" | "int" | "float" | "str" | "choice" | "list" (JSON-typed in the form)
+    default: Any
+    optional: bool  # None is allowed
+    choices: tuple[Any, ...]  # for "choice"
+    description: str
+    section: str  # "" for top-level keys
+    locked: bool  # set by the server's operator only
+
+
+def field_descriptions(cls: type) -> dict[str, str]:
+    """``#:`` comment block above each field of dataclass ``cls`` (a block shared by consecutive
+    fields with no comment of their own describes each of them)."""
+    out: dict[str, str] = {}
+    names = {f.name for f in dataclasses.fields(cls)}
+    pending: list[str] = []
+    current = ""
+    for line in inspect.getsource(cls).splitlines()[1:]:
+        stripped = line.strip()
+        m = _FIELD_LINE.match(line)
+        if stripped.startswith("#:"):
+            pending.append(stripped[2:].strip())
+        elif m and m.group(1) in names:
+            if pending:
+                current, pending = " ".join(pending), []
+            out[m.group(1)] = current
+        else:  # a blank line, the docstring or a method ends a shared block
+            pending, current = [], ""
+    return out
+
+
+def _kind(tp: Any) -> tuple[str, bool, tuple[Any, ...]]:
+    """(kind, optional, choices) of a config type hint."""
+    optional = False
+    origin = typing.get_origin(tp)
+    if origin in (typing.Union, types.UnionType):
+        args = [a for a in typing.get_args(tp) if a is not type(None)]
+        optional = len(args) < len(typing.get_args(tp))
+        tp = args[0] if len(args) == 1 else tp
+        origin = typing.get_origin(tp)
+    if origin is Literal:
+        return "choice", optional, typing.get_args(tp)
+    if origin in (list, tuple):
+        return "list", optional, ()
+    names = {bool: "bool", int: "int", float: "float", str: "str"}
+    return names.get(tp, "str"), optional, ()
+
+
+@functools.cache
+def config_fields() -> tuple[ConfigField, ...]:
+    """Every leaf of :class:`FillConfig`, sections first in declaration order."""
+    out: list[ConfigField] = []
+
+    def walk(cls: type, defaults: Any, prefix: str) -> None:
+        hints = typing.get_type_hints(cls)
+        docs = field_descriptions(cls)
+        for f in dataclasses.fields(cls):
+            tp = hints[f.name]
+            value = getattr(defaults, f.name)
+            if dataclasses.is_dataclass(tp):
+                walk(tp, value, f"{prefix}{f.name}.")
+                continue
+            kind, optional, choices = _kind(tp)
+            key = f"{prefix}{f.name}"
+            out.append(
+                ConfigField(
+                    key, kind, value, optional, choices, docs.get(f.name, ""), prefix[:-1], key in LOCKED_KEYS
+                )
+            )
+
+    walk(FillConfig, FillConfig(), "")
+    return tuple(out)
+
+
+def flatten(data: Any, where: str = "config") -> dict[str, Any]:
+    """A request's config object, nested (``{"depth": {"backend": "stereo"}}``) or dotted
+    (``{"depth.backend": "stereo"}``), as dotted overrides."""
+    if not isinstance(data, dict):
+        raise ConfigError(f"{where}: expected a JSON object, got {type(data).__name__}")
+    out: dict[str, Any] = {}
+    for key, value in data.items():
+        dotted = key if where == "config" else f"{where[len('config.') :]}.{key}"
+        if isinstance(value, dict):
+            out.update(flatten(value, f"config.{dotted}"))
+        else:
+            out[dotted] = value
+    return out
+
+
+def apply_request_config(base: FillConfig, data: Any) -> FillConfig:
+    """``base`` with a request's overrides; ConfigError names the offending key."""
+    overrides = flatten(data)
+    locked = sorted(k for k in overrides if k in LOCKED_KEYS)
+    if locked:
+        raise ConfigError(f"config key '{locked[0]}' can only be set by whoever starts the server")
+    return base.updated(overrides) if overrides else base
+
+
+@functools.cache
+def config_model() -> type:
+    """A pydantic model mirroring :class:`FillConfig` with its ``#:`` descriptions, for OpenAPI."""
+    from pydantic import Field, create_model
+
+    def build(cls: type) -> type:
+        hints = typing.get_type_hints(cls)
+        docs = field_descriptions(cls)
+        defaults = cls()
+        fields: dict[str, Any] = {}
+        for f in dataclasses.fields(cls):
+            tp = hints[f.name]
+            if dataclasses.is_dataclass(tp):
+                fields[f.name] = (build(tp), Field(default_factory=tp, description=tp.__doc__))
+            else:
+                fields[f.name] = (tp, Field(default=getattr(defaults, f.name), description=docs.get(f.name)))
+        return create_model(cls.__name__, __doc__=cls.__doc__, **fields)
+
+    return build(FillConfig)

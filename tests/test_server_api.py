@@ -1,0 +1,402 @@
+"""The REST API of ``geofill serve`` through FastAPI's TestClient: every endpoint and error path, a
+real fill of a synthetic scene, cancel, the queue limit and expiry.
+
+Error paths run on a server with no worker (``workers=0``): jobs stay queued, so queue, cancel and
+expiry are deterministic and no process is started."""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import signal
+import time
+
+import numpy as np
+import pytest
+
+pytest.importorskip("fastapi", reason="the server extra is not installed")
+pytest.importorskip("httpx", reason="FastAPI's TestClient needs httpx")
+import psutil
+from fastapi.testclient import TestClient
+from PIL import Image
+
+from geofill.server.app import create_app
+from geofill.server.jobs import ServerSettings
+from geofill.server.schema import config_fields, field_descriptions, flatten
+from geofill.synthetic import make_pair
+
+W, H = 320, 240
+
+
+def png(a: np.ndarray) -> bytes:
+    buf = io.BytesIO()
+    Image.fromarray(a).save(buf, "PNG")
+    return buf.getvalue()
+
+
+@pytest.fixture(scope="module")
+def pair():
+    return make_pair(seed=0, width=W, height=H)
+
+
+@pytest.fixture(scope="module")
+def upload(pair):
+    """The synthetic pair as multipart files, with a flat magenta 'object' in the target's hole."""
+    target = pair.target.copy()
+    target[pair.hole] = (255, 0, 255)
+    return {
+        "target_array": target,
+        "target": png(target),
+        "mask": png(pair.hole.astype(np.uint8) * 255),
+        "source": png(pair.source),
+    }
+
+
+def files(upload, n_sources: int = 1, **replace):
+    parts = {"target": upload["target"], "mask": upload["mask"]} | replace
+    out = [(name, (f"{name}.png", data)) for name, data in parts.items() if data is not None]
+    return out + [("sources", (f"ref{k}.png", upload["source"])) for k in range(n_sources)]
+
+
+class FakeClock:
+    def __init__(self) -> None:
+        self.now = 1000.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+@pytest.fixture
+def idle(tmp_path):
+    """A server with no worker: (client, app, clock)."""
+    clock = FakeClock()
+    settings = ServerSettings(
+        workers=0, queue_size=2, job_ttl_s=60.0, max_upload_bytes=400_000, max_pixels=200_000,
+        max_sources=3, temp_parent=str(tmp_path),
+    )  # fmt: skip
+    app = create_app(settings, clock=clock)
+    with TestClient(app) as client:
+        yield client, app, clock
+
+
+def wait_for(
+    client, job_id: str, states=("done", "failed", "cancelled"), timeout_s: float = 300.0, stage: str = ""
+) -> dict:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        snap = client.get(f"/api/v1/jobs/{job_id}").json()
+        reached = not stage or stage == snap["stage"] or stage in snap["stages_done"]
+        if snap["state"] in states and reached:
+            return snap
+        time.sleep(0.1)
+    raise AssertionError(f"job still {snap['state']} after {timeout_s} s")
+
+
+def test_real_fill_through_the_api(tmp_path, upload, pair):
+    app = create_app(ServerSettings(workers=1, temp_parent=str(tmp_path)))
+    with TestClient(app) as client:
+        r = client.post("/api/v1/fill", files=files(upload, n_sources=2), data={"config": "{}"})
+        assert r.status_code == 202, r.text
+        job_id = r.json()["id"]
+        assert r.headers["location"] == f"/api/v1/jobs/{job_id}"
+        snap = wait_for(client, job_id)
+        assert snap["state"] == "done", snap
+        assert snap["progress"] == 1.0
+        assert {"match", "pose", "render", "composite", "write result"} <= set(snap["stages_done"])
+        assert snap["notices"] == []
+        assert snap["report"]["hole_pixels"] == int(pair.hole.sum())
+        assert len(snap["report"]["references"]) == 2
+        rows = {row["label"]: row["fraction"] for row in snap["coverage"]}
+        assert rows["reference 1"] + rows["reference 2"] + rows["painted"] == pytest.approx(1.0)
+        assert rows["reference 1"] + rows["reference 2"] > 0.5  # the synthetic source sees most of the hole
+        assert rows["reference 1"] == pytest.approx(snap["report"]["supplied_fraction"][0])
+        assert "% from reference" in snap["summary"] and "% painted" in snap["summary"]
+
+        res = client.get(f"/api/v1/jobs/{job_id}/result")
+        assert res.status_code == 200 and res.headers["content-type"] == "image/png"
+        out = np.array(Image.open(io.BytesIO(res.content)))
+        target = upload["target_array"]
+        assert out.shape == target.shape
+        assert np.array_equal(out[~pair.hole], target[~pair.hole])  # byte-identical outside the hole
+        # the magenta object is gone: the fill is close to the true scene, far from magenta
+        hole_err = np.abs(out[pair.hole].astype(int) - pair.target[pair.hole]).mean()
+        magenta_err = np.abs(out[pair.hole].astype(int) - (255, 0, 255)).mean()
+        assert hole_err < 40 < magenta_err
+
+        cov = np.array(Image.open(io.BytesIO(client.get(f"/api/v1/jobs/{job_id}/coverage").content)))
+        assert cov.shape == (H, W, 4)
+        assert (cov[~pair.hole, 3] == 0).all() and (cov[pair.hole, 3] > 0).all()
+        assert (cov[pair.hole, 1] == 170).mean() == pytest.approx(rows["reference 1"], abs=1e-6)
+
+        # a finished job is deleted at once by DELETE, files included
+        folder = app.state.jobs.get(job_id).folder
+        assert client.delete(f"/api/v1/jobs/{job_id}").status_code == 200
+        assert not folder.exists() and client.get(f"/api/v1/jobs/{job_id}").status_code == 404
+    assert list(tmp_path.iterdir()) == []  # the server's folder is gone with it
+
+
+def test_fallback_is_reported_with_its_reason(tmp_path):
+    pair = make_pair(seed=4, width=160, height=120)
+    parts = [
+        ("target", ("t.png", png(pair.target))),
+        ("mask", ("m.png", png(pair.hole.astype(np.uint8) * 255))),
+        ("sources", ("s.png", png(pair.source))),
+    ]
+    config = json.dumps({"render.min_hole_coverage": 1.01})  # no render can cover more than all
+    app = create_app(ServerSettings(workers=1, temp_parent=str(tmp_path)))
+    with TestClient(app) as client:
+        job_id = client.post("/api/v1/fill", files=parts, data={"config": config}).json()["id"]
+        snap = wait_for(client, job_id)
+        assert snap["state"] == "done" and snap["status"] == "single_image"
+        assert snap["fallbacks"][0].startswith("the source covers only")
+        assert snap["summary"] == "100 % painted"
+        out = np.array(Image.open(io.BytesIO(client.get(f"/api/v1/jobs/{job_id}/result").content)))
+        assert np.array_equal(out[~pair.hole], pair.target[~pair.hole])
+
+
+def test_cancel_terminates_the_running_worker_and_a_dead_worker_fails_its_job(tmp_path, upload):
+    app = create_app(ServerSettings(workers=1, temp_parent=str(tmp_path)))
+    with TestClient(app) as client:
+        # the paper's solver runs for minutes: the job is surely still running when cancelled
+        config = json.dumps({"optimize": {"solver": "paper"}, "depth.backend": "sparse"})
+        job_id = client.post("/api/v1/fill", files=files(upload), data={"config": config}).json()["id"]
+        snap = wait_for(client, job_id, states=("running",), timeout_s=120, stage="optimize")
+        assert snap["state"] == "running" and "match" in snap["stages_done"]
+        (pid,) = app.state.jobs.worker_pids()
+        r = client.delete(f"/api/v1/jobs/{job_id}")
+        assert r.status_code == 200 and r.json()["state"] == "cancelled"
+        assert not psutil.pid_exists(pid) or psutil.Process(pid).status() == psutil.STATUS_ZOMBIE
+        assert client.get(f"/api/v1/jobs/{job_id}/result").status_code == 409
+        # the slot has a fresh worker for the next job
+        job2 = client.post("/api/v1/fill", files=files(upload), data={"config": config}).json()["id"]
+        assert wait_for(client, job2, states=("running",), timeout_s=120, stage="match")["state"] == "running"
+        (pid2,) = app.state.jobs.worker_pids()
+        assert pid2 != pid
+        # a worker that dies (killed, out of memory) fails its job with the reason; nothing hangs
+        os.kill(pid2, signal.SIGKILL)
+        snap = wait_for(client, job2, timeout_s=60)
+        assert snap["state"] == "failed" and snap["error_kind"] == "crash"
+        assert snap["error"] == f"the worker process ended unexpectedly (exit {-signal.SIGKILL})"
+
+
+def test_queue_limit_is_429_with_retry_after(idle, upload):
+    client, _, _ = idle
+    for _ in range(2):
+        assert client.post("/api/v1/fill", files=files(upload)).status_code == 202
+    r = client.post("/api/v1/fill", files=files(upload))
+    assert r.status_code == 429 and int(r.headers["retry-after"]) > 0
+    assert "queue is full" in r.json()["detail"]
+
+
+def test_cancel_queued_job_then_expiry_deletes_it(idle, upload, tmp_path):
+    client, app, clock = idle
+    job_id = client.post("/api/v1/fill", files=files(upload)).json()["id"]
+    folder = app.state.jobs.get(job_id).folder
+    assert folder.parent.parent == tmp_path and sorted(p.name for p in folder.iterdir()) == [
+        "mask", "source-1", "target",
+    ]  # fmt: skip
+    assert client.get(f"/api/v1/jobs/{job_id}").json()["state"] == "queued"
+    assert client.get(f"/api/v1/jobs/{job_id}/result").status_code == 409
+    assert client.delete(f"/api/v1/jobs/{job_id}").json()["state"] == "cancelled"
+    clock.now += 59.0
+    assert app.state.jobs.expire() == 0 and folder.exists()
+    clock.now += 1.0
+    assert app.state.jobs.expire() == 1
+    assert not folder.exists()
+    assert client.get(f"/api/v1/jobs/{job_id}").status_code == 404
+
+
+def test_client_filenames_never_become_paths(idle, upload, tmp_path):
+    client, app, _ = idle
+    parts = [
+        ("target", ("../../escape.png", upload["target"])),
+        ("mask", ("/etc/passwd", upload["mask"])),
+        ("sources", ("..\\..\\x.png", upload["source"])),
+    ]
+    job_id = client.post("/api/v1/fill", files=parts).json()["id"]
+    everything = sorted(str(p.relative_to(tmp_path)) for p in tmp_path.rglob("*"))
+    root = app.state.jobs.root.name
+    assert everything == [root, f"{root}/{job_id}"] + [
+        f"{root}/{job_id}/{n}" for n in ("mask", "source-1", "target")
+    ]
+
+
+@pytest.mark.parametrize(
+    ("parts", "status", "words"),
+    [
+        ({"target": None}, 400, "'target' (a file) is missing"),
+        ({"mask": None}, 400, "'mask' (a file) is missing"),
+        ({"sources": 0}, 400, "at least one reference"),
+        ({"target": b"not an image at all"}, 400, "target: not a PNG, JPEG, WebP or TIFF"),
+        ({"target": "truncated"}, 400, "target: cannot decode image"),
+        ({"mask": "small"}, 400, "mask"),
+        ({"mask": "empty"}, 400, "no hole"),
+        ({"target": "huge-bytes"}, 413, "upload limit of 400000 bytes"),
+        ({"target": "huge-pixels"}, 413, "max_pixels 200000"),
+        ({"sources": 4}, 413, "at most 3 (max_sources)"),
+    ],
+)
+def test_bad_uploads_are_4xx_naming_the_problem(idle, upload, parts, status, words):
+    client, app, _ = idle
+    special = {
+        "truncated": upload["target"][: len(upload["target"]) // 2],
+        "small": png(np.full((100, 100), 255, np.uint8)),
+        "empty": png(np.zeros((H, W), np.uint8)),
+        "huge-bytes": np.random.default_rng(0).integers(0, 255, 500_000, np.uint8).tobytes(),
+        "huge-pixels": png(np.zeros((500, 500, 3), np.uint8)),
+    }
+    n = parts.pop("sources", 1)
+    replace = {k: special.get(v, v) if isinstance(v, str) else v for k, v in parts.items()}
+    r = client.post("/api/v1/fill", files=files(upload, n_sources=n, **replace))
+    assert r.status_code == status, r.text
+    assert words in r.json()["detail"]
+    assert app.state.jobs.counts() == {}
+    assert list(app.state.jobs.root.iterdir()) == []  # the upload's files are gone
+
+
+@pytest.mark.parametrize(
+    ("config", "words"),
+    [
+        ("{not json", "config: not valid JSON"),
+        ('["a list"]', "expected a JSON object"),
+        ('{"depth": {"bakend": "stereo"}}', "unknown config key 'depth.bakend'"),
+        ('{"nosuch.key": 1}', "unknown config section 'nosuch'"),
+        ('{"depth.backend": "magic"}', "config.depth.backend: 'magic' is not one of"),
+        ('{"matching": {"max_features": "many"}}', "config.matching.max_features: expected an integer"),
+        ('{"depth": {"model_path": "/etc/passwd"}}', "'depth.model_path' can only be set by whoever starts"),
+        ('{"max_pixels": 1e12}', "'max_pixels' can only be set"),
+    ],
+)
+def test_bad_config_is_422_naming_the_key(idle, upload, config, words):
+    client, _, _ = idle
+    r = client.post("/api/v1/fill", files=files(upload), data={"config": config})
+    assert r.status_code == 422, r.text
+    assert words in r.json()["detail"]
+
+
+def test_malformed_requests_are_4xx(idle, upload):
+    client, _, _ = idle
+    assert client.post("/api/v1/fill", json={"target": "x"}).status_code == 415
+    assert (
+        client.post("/api/v1/fill", content=b"x", headers={"content-type": "multipart/form-data"}).status_code
+        == 415
+    )
+    garbage = {"content-type": "multipart/form-data; boundary=zz"}
+    assert client.post("/api/v1/fill", content=b"--zz\r\nbroken", headers=garbage).status_code == 400
+    assert client.post("/api/v1/fill", content=b"\x00" * 100, headers=garbage).status_code == 400
+    r = client.post("/api/v1/fill", files=files(upload) + [("extra", ("e.png", b"1"))])
+    assert r.status_code == 400 and "unknown form field 'extra'" in r.json()["detail"]
+    r = client.post("/api/v1/fill", files=files(upload, target=None), data={"target": "text"})
+    assert r.status_code == 400 and "'target' must be a file" in r.json()["detail"]
+    r = client.post("/api/v1/fill", files=files(upload), headers={"content-length": str(10**12)})
+    assert r.status_code == 413
+    assert client.put("/api/v1/fill").status_code == 405
+
+
+@pytest.mark.parametrize("job_id", ["nope", "../../etc/passwd", "..%2F..%2Fetc", "A" * 32, "%00", "a" * 5000])
+def test_unknown_or_path_like_job_ids_are_404(idle, job_id):
+    client, _, _ = idle
+    for suffix in ("", "/result", "/coverage"):
+        assert client.get(f"/api/v1/jobs/{job_id}{suffix}").status_code == 404
+    assert client.delete(f"/api/v1/jobs/{job_id}").status_code == 404
+
+
+def test_config_endpoints_and_docs_come_from_fillconfig(idle):
+    client, _, _ = idle
+    cfg = client.get("/api/v1/config").json()
+    assert cfg["depth"]["backend"] == "auto" and cfg["max_pixels"] == 200_000  # the server's limit
+    fields = {f["key"]: f for f in client.get("/api/v1/config/fields").json()["fields"]}
+    assert len(fields) == len(config_fields())
+    backend = fields["depth.backend"]
+    assert backend["kind"] == "choice" and "stereo" in backend["choices"]
+    assert backend["description"].startswith("``auto``: ``fused`` when the learned model's weights resolve")
+    assert fields["depth.model_path"]["locked"] and not fields["depth.backend"]["locked"]
+    assert fields["intrinsics.focal_px"]["optional"] and fields["intrinsics.focal_px"]["kind"] == "float"
+    schema = client.get("/openapi.json").json()
+    depth = schema["components"]["schemas"]["DepthConfig"]["properties"]["backend"]
+    assert depth["description"] == backend["description"]
+    assert "/api/v1/fill" in schema["paths"] and "/api/v1/jobs/{job_id}/coverage" in schema["paths"]
+    docs = client.get("/docs")
+    assert docs.status_code == 200 and "cdn" not in docs.text.lower()
+    limits = client.get("/api/v1/limits").json()
+    assert limits["max_sources"] == 3 and "match" in limits["stages"]
+
+
+def test_page_and_its_files_are_served_without_external_references(idle):
+    client, _, _ = idle
+    page = client.get("/")
+    assert page.status_code == 200 and "default-src 'self'" in page.headers["content-security-policy"]
+    assert client.get("/static/favicon.svg").status_code == 200
+    for name in ("app.js", "style.css"):
+        r = client.get(f"/static/{name}")
+        assert r.status_code == 200
+        assert "http://" not in r.text and "https://" not in r.text
+    assert "https://" not in page.text and "http://" not in page.text
+
+
+def test_field_descriptions_read_the_config_comments():
+    from geofill.config import MatchingConfig, OptimizeConfig
+
+    docs = field_descriptions(MatchingConfig)
+    assert docs["ratio"] == "Lowe's ratio test threshold."
+    assert docs["max_features"].startswith("SIFT keypoints per image (strongest kept); 0 = no limit.")
+    # one comment above consecutive fields describes each of them
+    opt = field_descriptions(OptimizeConfig)
+    assert opt["lambda_photo"] == opt["lambda_negd"] and opt["lambda_negd"].startswith("Weights of L_photo")
+    assert opt["enabled"] == ""
+
+
+def test_flatten_accepts_nested_and_dotted_keys():
+    assert flatten(
+        {"depth": {"backend": "stereo"}, "render.edge_threshold": 0.1, "working_max_side": 640}
+    ) == {
+        "depth.backend": "stereo",
+        "render.edge_threshold": 0.1,
+        "working_max_side": 640,
+    }
+    assert flatten({"optimize": {"edge_blur_kernels": [3, 5]}}) == {"optimize.edge_blur_kernels": [3, 5]}
+
+
+def test_serve_without_the_extra_names_it(monkeypatch, capsys):
+    import builtins
+
+    from geofill.cli import main
+
+    real_import = builtins.__import__
+
+    def no_uvicorn(name, *args, **kwargs):
+        if name == "uvicorn":
+            raise ImportError("No module named 'uvicorn'")
+        return real_import(name, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "__import__", no_uvicorn)
+    assert main(["serve"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(
+        'geofill: error: geofill serve needs the server extra: pip install "geofill[server]"'
+    )
+    assert len(err.splitlines()) == 1
+
+
+def test_cli_module_does_not_import_the_server_or_fastapi():
+    import subprocess
+    import sys
+
+    heavy = "('fastapi', 'uvicorn', 'geofill.server')"
+    code = f"import sys, geofill.cli; print(sorted(m for m in sys.modules if m.startswith({heavy})))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"
+
+
+def test_stop_leaves_no_temp_files_or_workers(tmp_path):
+    app = create_app(ServerSettings(workers=1, temp_parent=str(tmp_path)))
+    with TestClient(app) as client:
+        assert client.get("/api/v1/limits").status_code == 200
+        deadline = time.monotonic() + 60
+        while not app.state.jobs.worker_pids() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        pids = app.state.jobs.worker_pids()
+        assert len(pids) == 1
+    assert list(tmp_path.iterdir()) == []
+    assert not any(psutil.pid_exists(p) and psutil.Process(p).status() != psutil.STATUS_ZOMBIE for p in pids)
