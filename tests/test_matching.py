@@ -9,7 +9,7 @@ import pytest
 
 from geofill.config import FillConfig, MatchingConfig
 from geofill.errors import ConfigError
-from geofill.matching import MIN_MATCHES_FOR_F, match_pair
+from geofill.matching import MIN_MATCHES_FOR_F, Matches, match_pair
 from geofill.matching.features import epipolar_band, mutual_ratio_matches
 from geofill.matching.ladder import hole_support, verify_fundamental
 from geofill.synthetic import SyntheticPair, make_pair
@@ -161,3 +161,20 @@ def test_featureless_and_repetitive_images_never_raise(side: int) -> None:
 def test_out_of_range_settings_are_refused_with_their_key(key: str, value: float) -> None:
     with pytest.raises(ConfigError, match=key.replace(".", r"\.")):
         FillConfig().updated({key: value})
+
+
+def test_focal_keeps_the_prior_when_the_matches_did_not_verify():
+    from dataclasses import replace
+
+    from geofill.camera import Intrinsics
+    from geofill.config import IntrinsicsConfig
+    from geofill.focal import estimate_focal
+
+    rng = np.random.default_rng(0)
+    pts = rng.uniform(0, 300, (60, 2))
+    K = Intrinsics.from_focal(300.0, 320, 240)
+    m = Matches(pts, pts + 3.0, np.eye(3), 60, 60, 60, rung="asift", verified=False)
+    est = estimate_focal(m, K, K, IntrinsicsConfig())
+    assert est.status == "prior" and "unverified asift rung" in est.reason
+    assert est.K_target.fx == K.fx
+    assert estimate_focal(replace(m, verified=True), K, K, IntrinsicsConfig()).reason != est.reason

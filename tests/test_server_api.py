@@ -143,13 +143,13 @@ def test_fallback_is_reported_with_its_reason(tmp_path):
         ("mask", ("m.png", png(pair.hole.astype(np.uint8) * 255))),
         ("sources", ("s.png", png(pair.source))),
     ]
-    config = json.dumps({"render.min_hole_coverage": 1.01})  # no render can cover more than all
+    config = json.dumps({"render.min_hole_coverage": 1.0})  # this render covers less than all
     app = create_app(ServerSettings(workers=1, temp_parent=str(tmp_path)))
     with TestClient(app) as client:
         job_id = client.post("/api/v1/fill", files=parts, data={"config": config}).json()["id"]
         snap = wait_for(client, job_id)
         assert snap["state"] == "done" and snap["status"] == "single_image"
-        assert snap["fallbacks"][0].startswith("the source covers only")
+        assert snap["fallbacks"][0].startswith("reference 1: it covers only")
         assert snap["summary"] == "100 % painted"
         out = np.array(Image.open(io.BytesIO(client.get(f"/api/v1/jobs/{job_id}/result").content)))
         assert np.array_equal(out[~pair.hole], pair.target[~pair.hole])
@@ -228,7 +228,7 @@ def test_client_filenames_never_become_paths(idle, upload, tmp_path):
         ({"target": None}, 400, "'target' (a file) is missing"),
         ({"mask": None}, 400, "'mask' (a file) is missing"),
         ({"sources": 0}, 400, "at least one reference"),
-        ({"target": b"not an image at all"}, 400, "target: not a PNG, JPEG, WebP or TIFF"),
+        ({"target": b"not an image at all"}, 400, "target: not a PNG, JPEG, WebP, TIFF or HEIC image"),
         ({"target": "truncated"}, 400, "target: cannot decode image"),
         ({"mask": "small"}, 400, "mask"),
         ({"mask": "empty"}, 400, "no hole"),

@@ -187,6 +187,11 @@ def estimate_focal(
         return keep("given", "focal lengths given by flags")
     if matches.F is None or len(matches) < MIN_MATCHES_FOR_F:
         return keep("prior", f"too few verified matches ({len(matches)}) to estimate the focal")
+    if not matches.verified:
+        # The ladder's best rung did not verify: its matches hold a pose at best, not a focal.
+        return keep(
+            "prior", f"matches from an unverified {matches.rung} rung: too thin to estimate the focal"
+        )
 
     candidates: list[FocalCandidate] = []
     profile = None
