@@ -37,8 +37,8 @@ class Section:
     result_file: str | None = None
 
 
-def _eval(out: str, *extra: str) -> list[str]:
-    return [PY, "-m", "geofill.cli", "eval", "--pairs", str(PAIRS), "--out", out, *extra]
+def _eval(out: str, *extra: str, pairs: Path = PAIRS) -> list[str]:
+    return [PY, "-m", "geofill.cli", "eval", "--pairs", str(pairs), "--out", out, *extra]
 
 
 SECTIONS = [
@@ -56,18 +56,7 @@ SECTIONS = [
         "The 7 DEV sets of `../shared/data/multiview` (a target and 3-4 references each), the same stroke "
         "holes as the pairs. Every method with the primary reference alone, each other reference alone "
         "(`[ref k]`), and geofill with all references (`[all]`, feathered per-pixel winners).",
-        [
-            PY,
-            "-m",
-            "geofill.cli",
-            "eval",
-            "--pairs",
-            str(MULTIVIEW),
-            "--out",
-            "{out}",
-            "--methods",
-            "homography,geofill",
-        ],
+        _eval("{out}", "--methods", "homography,geofill", pairs=MULTIVIEW),
         "summary.md",
     ),
     Section(
@@ -75,20 +64,7 @@ SECTIONS = [
         "Seams between references: graph cut (`geofill eval --methods geofill_graphcut`)",
         "As above with `fusion.seams=graphcut` (OpenCV graph-cut seams between the per-pixel winners) "
         "instead of feathered winners, all references only; compare its `[all]` row with the default's.",
-        [
-            PY,
-            "-m",
-            "geofill.cli",
-            "eval",
-            "--pairs",
-            str(MULTIVIEW),
-            "--out",
-            "{out}",
-            "--methods",
-            "geofill_graphcut",
-            "--references",
-            "all",
-        ],
+        _eval("{out}", "--methods", "geofill_graphcut", "--references", "all", pairs=MULTIVIEW),
         "summary.md",
     ),
     Section(
