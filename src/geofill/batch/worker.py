@@ -60,6 +60,8 @@ def fill_from_references(
 ) -> Filled:
     """The one place a batch calls :func:`geofill.fill` (with every reference of the item) and
     reads the hole coverage."""
+    # A batch already runs one fill per core: references one after the other inside each.
+    cfg = cfg.updated({"fusion.parallel": 1})
     result = fill(
         target.pixels,
         hole,
