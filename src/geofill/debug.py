@@ -65,10 +65,13 @@ def _to_u8(image: np.ndarray) -> np.ndarray:
     return (np.clip(image, 0, 1) * 255 + 0.5).astype(np.uint8)
 
 
-def _tile(image: np.ndarray, text: str, height: int) -> np.ndarray:
+def _tile(image: np.ndarray, text: str, height: int, swatch: np.ndarray | None = None) -> np.ndarray:
+    """``image`` scaled to ``height`` with ``text`` on a black label, underlined in ``swatch``."""
     h, w = image.shape[:2]
     out = cv2.resize(image, (max(round(w * height / h), 1), height), interpolation=cv2.INTER_AREA)
     cv2.rectangle(out, (0, 0), (min(out.shape[1], 10 + 9 * len(text)), 22), (0, 0, 0), -1)
+    if swatch is not None:
+        out[22:28, : min(out.shape[1], 10 + 9 * len(text))] = swatch
     cv2.putText(out, text, (5, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1, cv2.LINE_AA)
     return out
 
@@ -81,11 +84,10 @@ def overview_sheet(result: FillResult, target: np.ndarray, hole: np.ndarray, hei
     tiles = [_tile(marked, "target + hole", height)]
     for ref, frac in zip(result.references, result.report.supplied_fraction, strict=True):
         note = f"ref {ref.index}: dropped" if ref.dropped else f"ref {ref.index}: {100 * frac:.0f}% of hole"
-        tiles.append(_tile(ref.source, note, height))
+        tiles.append(_tile(ref.source, note, height, PALETTE[(ref.index - 1) % len(PALETTE)]))
     tiles.append(_tile(result.image, "fill", height))
-    tiles.append(
-        _tile(coverage_rgb(result), f"coverage ({100 * result.report.painted_fraction:.0f}% painted)", height)
-    )
+    painted = f"coverage ({100 * result.report.painted_fraction:.0f}% painted)"
+    tiles.append(_tile(coverage_rgb(result), painted, height, PAINTED))
     rows, width = [], max(sum(t.shape[1] for t in tiles[i : i + 4]) for i in range(0, len(tiles), 4))
     for i in range(0, len(tiles), 4):
         row = np.concatenate(tiles[i : i + 4], axis=1)
