@@ -23,7 +23,7 @@ from geofill.camera import pose_errors_deg
 from geofill.config import FillConfig
 from geofill.evaluation.runner import load_pairs, pair_mask
 from geofill.matching import match_pair
-from geofill.pipeline import prepare
+from geofill.views import prepare_views
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "pairs"
 
@@ -66,7 +66,7 @@ def main(argv: list[str] | None = None) -> int:
     ratios = []
     for pair in load_pairs(args.pairs or [str(DATA)]):
         hole = pair_mask(pair, args.seed, 100.0)
-        views = prepare(pair.target, hole, pair.source, cfg, pair.exif.target, pair.exif.source)
+        views = prepare_views(pair.target, hole, pair.source, cfg, pair.exif.target, pair.exif.source)
         target = views.target.copy()
         target[views.hole] = 0  # as the pipeline: the hole is blanked before matching
         times: dict[str, list[float]] = {v: [] for v in variants}
