@@ -125,8 +125,7 @@ def write_debug(out_dir: str | Path, result: FillResult, hole: np.ndarray, cfg: 
         if ref.refined is not None:
             save(f"refined_{i}.png", ref.refined.image)  # after residual flow and colour correction
     save("coverage.png", coverage_rgb(result))
-    target = result.image.copy()
-    save("overview.jpg", overview_sheet(result, target, hole))
+    save("overview.jpg", overview_sheet(result, result.image, hole))
     report = result.report.to_dict() | {"config": cfg.to_dict()}
     (out / "report.json").write_text(json.dumps(report, indent=2) + "\n")
     written.append(out / "report.json")
