@@ -1,6 +1,7 @@
 """Whole-process wall time and peak RSS of ``geofill fill`` as a user runs it, each run paired with
 the standalone homography baseline (``benchmarks/homography_baseline.py``) on the same files, and
-the start-up time of ``geofill --help`` and ``geofill config``.
+the start-up time of ``geofill --help``, ``geofill config`` and ``geofill serve`` (until its port
+accepts a connection).
 
 Runs alternate geofill, baseline, geofill, baseline, ... after one unmeasured warm-up of each (it
 fills numba's and the OS's caches), so drift in the machine's load hits both alike: the median of the
@@ -20,6 +21,7 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import socket
 import statistics
 import subprocess
 import sys
@@ -61,6 +63,26 @@ def _timed(cmd: list[str]) -> tuple[float, float]:
     return wall, usage.ru_maxrss / 1024.0
 
 
+def _serve_start(port: int) -> float:
+    """Seconds from starting ``geofill serve`` until its port accepts a TCP connection."""
+    t0 = time.perf_counter()
+    proc = subprocess.Popen([_geofill(), "serve", "--port", str(port)], stderr=subprocess.DEVNULL)
+    try:
+        while True:
+            if proc.poll() is not None:
+                raise RuntimeError(
+                    f"geofill serve exited with {proc.returncode} (is the server extra installed?)"
+                )
+            try:
+                socket.create_connection(("127.0.0.1", port), timeout=0.05).close()
+                return time.perf_counter() - t0
+            except OSError:
+                time.sleep(0.005)
+    finally:
+        proc.terminate()
+        proc.wait()
+
+
 def _geofill() -> str:
     return str(Path(sys.executable).parent / "geofill")
 
@@ -99,12 +121,17 @@ def main(argv: list[str] | None = None) -> int:
         _timed(cmd)
         times = [_timed(cmd)[0] for _ in range(args.runs)]
         print(f"{name:<16s} median {statistics.median(times):.3f} s  (runs {args.runs})")
+    times = [_serve_start(8765 + i) for i in range(args.runs + 1)][1:]
+    print(
+        f"{'geofill serve':<16s} median {statistics.median(times):.3f} s"
+        f"  (until the port accepts; runs {args.runs})"
+    )
     medians: dict[str, float] = {}
     print(
         f"{'case':<8s}{'geofill s':>11s}{'baseline s':>12s}{'ratio':>8s}{'peak RSS MB':>13s}"
         f"{'base RSS MB':>13s}  geofill runs"
     )
-    for case in args.cases.split(","):
+    for case in filter(None, args.cases.split(",")):
         if case == "berlin" and not (PAIRS / BERLIN).is_dir():
             print(f"{case:<8s} skipped: {PAIRS / BERLIN} not found")
             continue

@@ -15,11 +15,12 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from multiprocessing.connection import Connection
 from pathlib import Path
-from typing import Any
-
-import numpy as np
+from typing import TYPE_CHECKING, Any
 
 from ..progress import Progress
+
+if TYPE_CHECKING:  # numpy is imported where used: the server process starts without it
+    import numpy as np
 
 #: Stages a job goes through, in order, with the words the page shows (the pipeline's stage names,
 #: plus the worker's own reading and writing).
@@ -121,6 +122,8 @@ def run_fill(
 
 def coverage_rgba(source_map: np.ndarray) -> np.ndarray:
     """HxWx4 uint8 overlay: each hole pixel coloured by who filled it, transparent outside."""
+    import numpy as np
+
     out = np.zeros((*source_map.shape, 4), np.uint8)
     out[source_map == 0, :3] = PAINTED_RGB
     for k in range(1, int(source_map.max(initial=0)) + 1):
