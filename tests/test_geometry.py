@@ -9,7 +9,7 @@ from scipy.spatial.transform import Rotation
 from geofill.camera import Intrinsics, make_pose, pose_errors_deg
 from geofill.config import GeometryConfig, MatchingConfig
 from geofill.depth import DepthPrediction
-from geofill.depth.align import align_depth, fit_affine
+from geofill.depth.align import align_depth, fit_affine, sample_at
 from geofill.matching import Matches
 from geofill.pose import estimate_pose
 from geofill.triangulation import TriangulatedPoints, project, triangulate
@@ -114,6 +114,17 @@ def test_robust_fit_ignores_outliers_that_break_least_squares():
     s_rb, b_rb = fit_affine(x, y, robust=True)
     assert abs(s_ls - 2.5) > 0.05
     assert s_rb == pytest.approx(2.5, abs=0.02) and b_rb == pytest.approx(-0.3, abs=0.03)
+
+
+def test_sample_at_is_bilinear_clamped_and_propagates_nan():
+    # v = 2x + 3y is reproduced exactly by bilinear interpolation; positions outside clamp to the border.
+    yy, xx = np.mgrid[0:5, 0:7].astype(np.float32)
+    v = 2 * xx + 3 * yy
+    uv = np.array([[0.0, 0.0], [2.25, 1.5], [6.0, 4.0], [-3.0, 1.0], [9.0, 7.5], [5.5, 3.75]])
+    np.testing.assert_allclose(sample_at(v, uv), [0.0, 9.0, 24.0, 3.0, 24.0, 22.25], atol=1e-6)
+    v[2, 3] = np.nan  # every position whose four taps include (x=3, y=2) is NaN, the others are not
+    out = sample_at(v, np.array([[3.0, 2.0], [2.5, 1.5], [3.5, 2.5], [1.0, 1.0], [4.0, 3.0]]))
+    assert np.isnan(out[:3]).all() and np.isfinite(out[3:]).all()
 
 
 def test_align_depth_inverse_space_recovers_true_depth():
