@@ -156,7 +156,8 @@ def test_single_fill_allow_fallback_rule(pairs, tmp_path, capsys):
 
 
 def test_ctrl_c_keeps_finished_items_and_prints_the_summary(pairs, tmp_path):
-    names = {f"{key}_{i}": key for i in range(3) for key in pairs}  # 6 items
+    # 24 small items: enough that, under load, the signal lands long before the last one finishes.
+    names = {f"{key}_{i}": key for i in range(12) for key in pairs}
     root, out = _shoot(tmp_path, pairs, names), tmp_path / "out"
     cmd = [sys.executable, "-m", "geofill.cli", "batch", "--images", str(root / "images")]
     cmd += ["--masks", str(root / "masks"), "--sources-per-image", str(root / "refs"), "--out", str(out)]
