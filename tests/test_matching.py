@@ -10,7 +10,14 @@ import pytest
 from geofill.config import FillConfig, MatchingConfig
 from geofill.errors import ConfigError
 from geofill.matching import MIN_MATCHES_FOR_F, Matches, match_pair
-from geofill.matching.features import epipolar_band, mutual_ratio_matches
+from geofill.matching.features import (
+    detect_sift,
+    detect_sift_pair,
+    epipolar_band,
+    keypoint_mask,
+    mutual_ratio_matches,
+    to_gray_u8,
+)
 from geofill.matching.ladder import hole_support, verify_fundamental
 from geofill.synthetic import SyntheticPair, make_pair
 
@@ -107,15 +114,48 @@ def test_guided_matching_stays_in_the_epipolar_band(wide: SyntheticPair) -> None
     dist = np.abs(np.sum(np.c_[pts_t, np.ones(200)][:, None, :] * line[None], axis=2)) / np.hypot(
         line[:, 0], line[:, 1]
     )
-    np.testing.assert_array_equal(band.numpy(), dist < 2.0)
+    np.testing.assert_array_equal(band, dist < 2.0)
     # Identical descriptors everywhere: unguided, the ratio test rejects everything; guided, a
     # target point whose band holds a single candidate is matched to it.
     desc = np.full((300, 128), 1 / np.sqrt(128), np.float32)
     assert len(mutual_ratio_matches(desc[:200], desc, 0.9, False)) == 0
     pairs = mutual_ratio_matches(desc[:200], desc, 0.9, False, band)
-    single = np.flatnonzero(band.numpy().sum(axis=1) == 1)
+    single = np.flatnonzero(band.sum(axis=1) == 1)
     assert set(pairs[:, 0]) == set(single)
-    assert band.numpy()[pairs[:, 0], pairs[:, 1]].all()
+    assert band[pairs[:, 0], pairs[:, 1]].all()
+
+
+def _brute_force_matches(a: np.ndarray, b: np.ndarray, ratio: float, mutual: bool) -> set[tuple[int, int]]:
+    """The ratio test and mutual check spelled out on float64 Euclidean distances."""
+    d = np.linalg.norm(a[:, None].astype(np.float64) - b[None], axis=2)
+    out = set()
+    for i, row in enumerate(d):
+        j, k = np.argsort(row, kind="stable")[:2]
+        if row[j] < ratio * row[k] and (not mutual or np.argmin(d[:, j]) == i):
+            out.add((i, int(j)))
+    return out
+
+
+@pytest.mark.parametrize("mutual", [True, False])
+def test_matrix_matching_equals_brute_force_distances(wide: SyntheticPair, mutual: bool) -> None:
+    ft = detect_sift(to_gray_u8(wide.target), 600)
+    fs = detect_sift(to_gray_u8(wide.source), 600)
+    got = mutual_ratio_matches(ft.desc, fs.desc, 0.8, mutual)
+    want = _brute_force_matches(ft.desc, fs.desc, 0.8, mutual)
+    assert len(want) > 50
+    assert set(map(tuple, got.tolist())) == want
+    assert np.all(np.diff(got[:, 0]) > 0)  # rows in order, each at most once
+
+
+def test_sift_pair_in_two_threads_equals_one_after_the_other(wide: SyntheticPair) -> None:
+    grays = (to_gray_u8(wide.target), to_gray_u8(wide.source))
+    masks = (keypoint_mask(wide.hole, 8.0), None)
+    pair = detect_sift_pair(grays, 0, masks)
+    for got, g, m in zip(pair, grays, masks, strict=True):
+        want = detect_sift(g, 0, m)
+        assert len(got) > 100
+        np.testing.assert_array_equal(got.pts, want.pts)
+        np.testing.assert_array_equal(got.desc, want.desc)
 
 
 @pytest.mark.parametrize(

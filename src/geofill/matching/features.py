@@ -5,11 +5,11 @@ first estimate of the epipolar geometry."""
 from __future__ import annotations
 
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
-import torch
 
 
 @dataclass(frozen=True)
@@ -53,6 +53,19 @@ def detect_sift(gray: np.ndarray, max_features: int, mask: np.ndarray | None = N
     """SIFT keypoints (the ``max_features`` strongest; 0 = all) with RootSIFT descriptors."""
     kps, desc = cv2.SIFT_create(nfeatures=max_features).detectAndCompute(gray, mask)
     return _root_sift(kps, desc)
+
+
+def detect_sift_pair(
+    grays: tuple[np.ndarray, np.ndarray],
+    max_features: int,
+    masks: tuple[np.ndarray | None, np.ndarray | None],
+) -> tuple[Features, Features]:
+    """:func:`detect_sift` on two images at once, one thread each: OpenCV releases the GIL and
+    SIFT barely uses its own threads (berlin, 1280x960 both: 1.25 s one after the other, 0.74 s
+    at once on 2 cores). The results are the same as one after the other."""
+    with ThreadPoolExecutor(2, thread_name_prefix="sift") as pool:
+        a, b = pool.map(detect_sift, grays, (max_features, max_features), masks)
+    return a, b
 
 
 def asift_views(max_tilt: int) -> list[tuple[float, float]]:
@@ -113,40 +126,54 @@ def detect_asift(
 
 
 def mutual_ratio_matches(
-    desc_a: np.ndarray, desc_b: np.ndarray, ratio: float, mutual: bool, allowed: torch.Tensor | None = None
+    desc_a: np.ndarray, desc_b: np.ndarray, ratio: float, mutual: bool, allowed: np.ndarray | None = None
 ) -> np.ndarray:
     """(M, 2) index pairs (i in a, j in b) passing Lowe's ratio test (a->b) and, if asked, the
     mutual nearest-neighbour check. Descriptors must be L2-normalised (RootSIFT is). ``allowed``
     (bool, len(a) x len(b)) restricts the candidates of each descriptor (guided matching): the
     ratio test is then between the two best allowed candidates.
 
-    Exact nearest neighbours from one matrix product in torch: 2.4x faster than OpenCV's
-    brute-force matcher for 8000x8000 descriptors on 2 cores (0.30 s vs 0.71 s), and exact unlike FLANN.
+    Exact nearest neighbours from one float32 matrix product (BLAS) and two row maxima: faster
+    than OpenCV's brute-force matcher on 2 cores, and exact unlike FLANN.
+
+    >>> d = np.eye(3, dtype=np.float32)
+    >>> mutual_ratio_matches(d, d[[2, 0, 1]], ratio=0.8, mutual=True).tolist()
+    [[0, 1], [1, 2], [2, 0]]
     """
     if len(desc_a) < 2 or len(desc_b) < 2:
         return np.zeros((0, 2), dtype=np.int64)
-    sim = torch.from_numpy(desc_a) @ torch.from_numpy(desc_b).T
+    sim = np.asarray(desc_a, np.float32) @ np.asarray(desc_b, np.float32).T
     if allowed is not None:
         # Similarities lie in [0, 1] (non-negative unit descriptors): -1 is "no candidate".
-        sim = sim.masked_fill(~allowed, -1.0)
-    best, idx = sim.topk(2, dim=1)
+        sim[~allowed] = -1.0
+    rows = np.arange(len(desc_a))
+    first = sim.argmax(axis=1)
+    best1 = sim[rows, first]
+    # Column maxima, not arg-maxima: numpy's argmax across rows is 20x slower than max.
+    column_best = sim.max(axis=0) if mutual else None
+    # The second best of a row is its maximum once the best is masked out (two passes over the
+    # matrix instead of a partial sort of every row).
+    sim[rows, first] = -np.inf
+    best2 = sim.max(axis=1)
     # For unit vectors ||a - b||^2 = 2 - 2 a.b: the ratio test on distances, squared.
-    d2 = (2.0 - 2.0 * best).clamp_min(0.0)
-    keep = (d2[:, 0] < (ratio**2) * d2[:, 1]) & (best[:, 0] >= 0.0)
+    d1 = np.maximum(2.0 - 2.0 * best1, 0.0)
+    d2 = np.maximum(2.0 - 2.0 * best2, 0.0)
+    keep = (d1 < np.float32(ratio**2) * d2) & (best1 >= 0.0)
     if mutual:
-        keep &= sim.argmax(dim=0)[idx[:, 0]] == torch.arange(len(desc_a))
-    i = torch.nonzero(keep).ravel()
-    return torch.stack([i, idx[i, 0]], dim=1).numpy().astype(np.int64)
+        keep &= best1 >= column_best[first]
+    i = np.flatnonzero(keep)
+    if mutual:
+        # A tie for a column's maximum keeps its first row, as an arg-maximum would.
+        i = i[np.unique(first[i], return_index=True)[1]]
+        i.sort()
+    return np.stack([i, first[i]], axis=1).astype(np.int64)
 
 
-def epipolar_band(pts_t: np.ndarray, pts_s: np.ndarray, F: np.ndarray, band_px: float) -> torch.Tensor:
+def epipolar_band(pts_t: np.ndarray, pts_s: np.ndarray, F: np.ndarray, band_px: float) -> np.ndarray:
     """(len(t), len(s)) bool: target point i lies within ``band_px`` of the epipolar line of
     source point j (``x_t^T F x_s = 0``)."""
     lines = np.c_[pts_s, np.ones(len(pts_s))] @ F.T  # (Ns, 3) lines in the target
     lines /= np.maximum(np.hypot(lines[:, 0], lines[:, 1]), 1e-12)[:, None]
     # float32 like the similarity matrix it masks (positions < 1e4 px: 1e-3 px resolution).
-    dist = (
-        torch.from_numpy(np.c_[pts_t, np.ones(len(pts_t))].astype(np.float32))
-        @ torch.from_numpy(lines.astype(np.float32)).T
-    )
-    return dist.abs() < band_px
+    dist = np.c_[pts_t, np.ones(len(pts_t))].astype(np.float32) @ lines.astype(np.float32).T
+    return np.abs(dist) < band_px

@@ -34,7 +34,7 @@ from ..config import MatchingConfig
 from .features import (
     Features,
     detect_asift,
-    detect_sift,
+    detect_sift_pair,
     epipolar_band,
     keypoint_mask,
     mutual_ratio_matches,
@@ -199,8 +199,7 @@ class _Ladder:
     def sift(self, n: int) -> tuple[Features, Features]:
         key = f"sift{n}"
         if key not in self.features:
-            t, s = (detect_sift(g, n, m) for g, m in zip(self.gray, self.masks, strict=True))
-            self.features[key] = (t, s)
+            self.features[key] = detect_sift_pair(self.gray, n, self.masks)
         return self.features[key]
 
     def run(self, rung: str) -> _Candidate | None:
