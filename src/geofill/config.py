@@ -320,8 +320,9 @@ class OptimizeConfig:
     fast_min_weight: Annotated[float, Range(0, 1)] = 1e-3
     #: ``fast`` solver: margin (px at each level) around the weighted area kept in that set.
     fast_margin_px: Annotated[int, Range(0, 64)] = 1
-    #: torch intra-op threads while optimising (restored afterwards). The work is many small
-    #: memory-bound operations: 2 threads were 13x slower than 1 with the 2 cores shared by other jobs.
+    #: BLAS (and, for the paper solver, torch) threads while optimising (restored afterwards). The
+    #: work is many small memory-bound operations: 2 torch threads were 13x slower than 1 with the 2
+    #: cores shared by other jobs.
     threads: Annotated[int, Range(1, 256)] = 1
     #: Refine a focal scale shared by both images as an extra parameter (issue 7); off = the paper.
     refine_focal: bool = False

@@ -19,6 +19,8 @@ EXTRAS: dict[str, str] = {
     "pillow_heif": "heif",
     "patchmatch": "patchmatch",
     "matplotlib": "eval",
+    "torch": "torch",
+    "pytorch_optimizer": "paper",
 }
 
 

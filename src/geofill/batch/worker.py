@@ -97,13 +97,12 @@ def _exit_on_terminate(signum: int, frame: Any) -> None:
 
 
 def single_threaded() -> None:
-    """One thread for OpenCV, torch and numba in this process."""
+    """One thread for OpenCV and numba in this process (BLAS and OpenMP read the environment the
+    runner sets before the worker starts)."""
     import cv2
     import numba
-    import torch
 
     cv2.setNumThreads(1)
-    torch.set_num_threads(1)
     numba.set_num_threads(1)
 
 

@@ -37,6 +37,8 @@ from pathlib import Path
 import numpy as np
 from skimage.metrics import peak_signal_noise_ratio, structural_similarity
 
+from ..extras import require
+
 #: Data range of uint8 images.
 DATA_RANGE = 255.0
 #: Environment variable naming the local LPIPS model file.
@@ -145,13 +147,11 @@ def load_lpips(path: str | os.PathLike | None = None) -> LpipsScorer:
             if len(session.get_inputs()) != 2:
                 raise LpipsUnavailable(f"LPIPS ONNX model {model_path} must take 2 inputs")
             return LpipsScorer(model_path, "onnx", session)
+        if suffix in (_EXPORT_SUFFIX, *_TORCHSCRIPT_SUFFIXES):
+            torch = require("torch", f"an LPIPS model saved with torch ({suffix})")
         if suffix == _EXPORT_SUFFIX:
-            import torch
-
             return LpipsScorer(model_path, "torch.export", torch.export.load(str(model_path)).module())
         if suffix in _TORCHSCRIPT_SUFFIXES:
-            import torch
-
             with warnings.catch_warnings():
                 # The user chose the format; PyTorch's deprecation notice is not theirs to act on here.
                 warnings.simplefilter("ignore", DeprecationWarning)

@@ -42,7 +42,7 @@ Solvers
     ``paper``: DiffGrad (pytorch_optimizer) with a constant learning rate, cumulative iteration limits
     per level, the supplement's convergence test (:func:`converged`) and the best parameters of each
     level carried to the next. ``fast``: Levenberg-Marquardt on the same objective (exact gradient
-    by autograd, Gauss-Newton / IRLS curvature), on the source pixels whose reprojection lands where
+    written out, Gauss-Newton / IRLS curvature), on the source pixels whose reprojection lands where
     W is significant, coarse to fine over the same pyramid. Both are followed by the guard rails of
     :func:`guard`.
 """
@@ -50,13 +50,13 @@ Solvers
 from .fast_solver import solve_fast
 from .importance import importance_map
 from .objective import Terms, barron_loss, barron_weight, evaluate, objective
-from .paper_solver import converged, solve_paper
+from .paper_solver import converged, quaternion_to_matrix, solve_paper
 from .params import (
     Points,
     PoseDepthParams,
     RawGradient,
+    array_params,
     project,
-    quaternion_to_matrix,
     renormalise,
     reprojection_vjp,
 )
@@ -74,6 +74,7 @@ __all__ = [
     "Problem",
     "RawGradient",
     "Terms",
+    "array_params",
     "barron_loss",
     "barron_weight",
     "build_problem",

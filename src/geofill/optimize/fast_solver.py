@@ -1,6 +1,6 @@
 """The ``fast`` solver: Levenberg-Marquardt in a chart that keeps |t| fixed, with the exact gradient
-(autograd's d loss / d(x, y) chained through the analytic reprojection derivative) and the
-Gauss-Newton / IRLS curvature of :mod:`geofill.optimize.objective`."""
+(d loss / d(x, y) of :mod:`geofill.optimize.objective` chained through the analytic reprojection
+derivative) and its Gauss-Newton / IRLS curvature. NumPy only: no torch on the default path."""
 
 from __future__ import annotations
 
@@ -8,22 +8,28 @@ import math
 from typing import NamedTuple
 
 import numpy as np
-import torch
 from scipy.spatial.transform import Rotation
 
 from ..camera import Intrinsics
-from .objective import evaluate, feature_gauss_newton, objective, photo_gauss_newton, prior_gauss_newton
+from .objective import (
+    evaluate,
+    feature_gauss_newton,
+    focal_prior_gradient,
+    objective_gradient,
+    photo_gauss_newton,
+    prior_gauss_newton,
+)
 from .params import (
     Points,
     PoseDepthParams,
     RawGradient,
     Reprojection,
+    array_params,
     drho_da,
     dxy_dY,
     project,
     reproject_points,
     reprojection_vjp,
-    torch_params,
 )
 from .problem import LevelLog, PhotoLevel, Problem, sample_target
 
@@ -57,7 +63,7 @@ class _Chart:
         self.n = 8 if with_focal else 7
         self.norm = float(np.linalg.norm(p.t))
         self.B = _tangent_basis(p.t)
-        self.R, self.t, self.scale, self.offset, self.log_focal = torch_params(p)
+        self.R, self.t, self.scale, self.offset, self.log_focal = array_params(p)
         self.ef = math.exp(p.log_focal)
 
     def reproject(self, pts: Points, K_t: Intrinsics, space: str) -> Reprojection:
@@ -66,32 +72,32 @@ class _Chart:
     def jacobian(self, r: Reprojection, pts: Points, K_t: Intrinsics, space: str):
         """dx/d delta and dy/d delta, (N, n), of the reprojection ``r`` of ``pts`` (analytic)."""
         Rr = r.rotated
-        zero = torch.zeros_like(r.rho)
-        dY = torch.empty((*r.Y.shape, self.n), dtype=r.Y.dtype)  # (N, 3, n)
+        dY = np.zeros((*r.Y.shape, self.n), dtype=r.Y.dtype)  # (N, 3, n)
         # Rotation (I + [w]x) R: d(R ray) = w x (R ray); t is not rotated.
-        dY[:, :, 0] = torch.stack([zero, -Rr[:, 2], Rr[:, 1]], 1)
-        dY[:, :, 1] = torch.stack([Rr[:, 2], zero, -Rr[:, 0]], 1)
-        dY[:, :, 2] = torch.stack([-Rr[:, 1], Rr[:, 0], zero], 1)
-        dY[:, :, 3:5] = r.rho[:, None, None] * torch.as_tensor(self.norm * self.B, dtype=r.Y.dtype)
+        dY[:, 1, 0], dY[:, 2, 0] = -Rr[:, 2], Rr[:, 1]
+        dY[:, 0, 1], dY[:, 2, 1] = Rr[:, 2], -Rr[:, 0]
+        dY[:, 0, 2], dY[:, 1, 2] = -Rr[:, 1], Rr[:, 0]
+        dY[:, :, 3:5] = r.rho[:, None, None] * (self.norm * self.B).astype(r.Y.dtype)
         drho = drho_da(r, space)
         dY[:, :, 5] = self.t * (drho * pts.value)[:, None]
         dY[:, :, 6] = self.t * drho[:, None]
         if self.n == 8:  # rays shrink as the focal grows
             dY[:, :, 7] = -(r.rays[:, :2] @ self.R[:, :2].T)
         ax, ay = dxy_dY(r, K_t, self.ef)
-        Jx = torch.einsum("nk,nkj->nj", ax, dY)
-        Jy = torch.einsum("nk,nkj->nj", ay, dY)
+        Jx = np.einsum("nk,nkj->nj", ax, dY)
+        Jy = np.einsum("nk,nkj->nj", ay, dY)
         if self.n == 8:  # x - cx scales with the target focal
-            Jx[:, 7] += torch.where(r.ok, r.x - K_t.cx, 0.0)
-            Jy[:, 7] += torch.where(r.ok, r.y - K_t.cy, 0.0)
+            zero = np.float32(0.0)
+            Jx[:, 7] += np.where(r.ok, r.x - K_t.cx, zero)
+            Jy[:, 7] += np.where(r.ok, r.y - K_t.cy, zero)
         return Jx, Jy
 
     def gradient(self, raw: RawGradient) -> np.ndarray:
         """The chart gradient (n,) from the gradient in (R, t, scale, offset, log focal)."""
-        M = raw.R @ torch.as_tensor(self.p.R).T  # rotation (I + [w]x) R: dl/dw = vee(M - M^T)
+        M = raw.R @ self.p.R.T  # rotation (I + [w]x) R: dl/dw = vee(M - M^T)
         g = np.empty(self.n)
         g[0:3] = [M[2, 1] - M[1, 2], M[0, 2] - M[2, 0], M[1, 0] - M[0, 1]]
-        g[3:5] = (self.norm * self.B.T) @ raw.t.numpy()
+        g[3:5] = (self.norm * self.B.T) @ raw.t
         g[5], g[6] = float(raw.scale), float(raw.offset)
         if self.n == 8:
             g[7] = float(raw.log_focal)
@@ -116,37 +122,35 @@ def _select_points(problem: Problem, level: PhotoLevel, *params: PoseDepthParams
     cfg = problem.cfg
     if cfg.fast_min_weight <= 0 or not cfg.use_photo:
         return level
-    keep = torch.zeros(len(level.points), dtype=torch.bool)
+    keep = np.zeros(len(level.points), dtype=bool)
     floor = cfg.fast_min_weight * float(level.support.max())
-    with torch.no_grad():
-        for p in params:
-            R, t, s, b, phi = torch_params(p)
-            x, y = project(R, t, s, b, phi, level.points, level.K_t, problem.space)
-            keep |= sample_target(level.support, x, y)[0] >= floor
+    for p in params:
+        x, y = project(*array_params(p), level.points, level.K_t, problem.space)
+        keep |= sample_target(level.support, x, y)[0] >= floor
     return level.subset(keep)
 
 
 class _Linearisation(NamedTuple):
     g: np.ndarray  # (n,) exact gradient of the level's objective in the chart at delta = 0
     H: np.ndarray  # (n, n) Gauss-Newton / IRLS curvature
-    Jx: torch.Tensor  # (N, n) d x / d delta of the points that measure a step's motion
-    Jy: torch.Tensor
+    Jx: np.ndarray  # (N, n) d x / d delta of the points that measure a step's motion
+    Jy: np.ndarray
 
 
 def _step_motion_px(lin: _Linearisation, step: np.ndarray) -> float:
     """95th percentile over (at most 4096 of) the points of the displacement (px) a chart step
     predicts."""
-    d = torch.as_tensor(step, dtype=torch.float32)
+    d = step.astype(np.float32)
     k = max(1, lin.Jx.shape[0] // 4096)
-    motion = torch.hypot(lin.Jx[::k] @ d, lin.Jy[::k] @ d)
-    return float(torch.quantile(motion, 0.95)) if motion.numel() else 0.0
+    motion = np.hypot(lin.Jx[::k] @ d, lin.Jy[::k] @ d)
+    return float(np.quantile(motion, 0.95)) if motion.size else 0.0
 
 
 def _linearise(problem: Problem, level: PhotoLevel, chart: _Chart) -> _Linearisation:
     """Exact gradient and Gauss-Newton / IRLS curvature of the level's objective in ``chart``.
 
-    The gradient chains autograd's d loss / d(x, y) through the analytic reprojection derivative
-    over every point; the curvature only steers the step, so its photometric part is summed over
+    The gradient chains d loss / d(x, y) through the analytic reprojection derivative over every
+    point; the curvature only steers the step, so its photometric part is summed over
     an even subsample of at most ``_CURVATURE_SAMPLES`` points (scaled up)."""
     cfg = problem.cfg
     f = problem.features
@@ -154,12 +158,7 @@ def _linearise(problem: Problem, level: PhotoLevel, chart: _Chart) -> _Linearisa
     K_f = problem.levels[0].K_t
     r = chart.reproject(level.points, level.K_t, space)
     rf = chart.reproject(f.points, K_f, space)
-    x, y, xf, yf = (v.detach().requires_grad_() for v in (r.x, r.y, rf.x, rf.y))
-    s, b, phi = (v.clone().requires_grad_() for v in (chart.scale, chart.offset, chart.log_focal))
-    terms = objective(problem, level, x, y, xf, yf, s, b, phi)
-    gx, gy, gxf, gyf, gphi = torch.autograd.grad(
-        terms.total, [x, y, xf, yf, phi], allow_unused=True, materialize_grads=True
-    )
+    gx, gy, gxf, gyf = objective_gradient(problem, level, r.x, r.y, rf.x, rf.y)
     lf = chart.p.log_focal
     raw = reprojection_vjp(r, level.points, level.K_t, space, chart.R, chart.t, lf, gx, gy)
     raw += reprojection_vjp(rf, f.points, K_f, space, chart.R, chart.t, lf, gxf, gyf)
@@ -174,15 +173,14 @@ def _linearise(problem: Problem, level: PhotoLevel, chart: _Chart) -> _Linearisa
     rs = Reprojection(*(v[sub] for v in r))
     pts_s = Points(level.points.rays[sub], level.points.value[sub])
     Jx, Jy = chart.jacobian(rs, pts_s, level.K_t, space)
-    with torch.no_grad():
-        if cfg.use_photo and n_pts:
-            H += photo_gauss_newton(problem, level, rs, level.colour[sub], step, Jx, Jy)
-        Jxf, Jyf = chart.jacobian(rf, f.points, K_f, space)
-        if cfg.use_feat and len(f.points):
-            H += feature_gauss_newton(problem, rf, Jxf, Jyf)
-        if cfg.refine_focal:
-            g[7] += float(gphi)
-            H[7, 7] += prior_gauss_newton(problem)
+    if cfg.use_photo and n_pts:
+        H += photo_gauss_newton(problem, level, rs, level.colour[sub], step, Jx, Jy)
+    Jxf, Jyf = chart.jacobian(rf, f.points, K_f, space)
+    if cfg.use_feat and len(f.points):
+        H += feature_gauss_newton(problem, rf, Jxf, Jyf)
+    if cfg.refine_focal:
+        g[7] += focal_prior_gradient(problem, lf)
+        H[7, 7] += prior_gauss_newton(problem)
     if not n_pts:
         Jx, Jy = Jxf, Jyf
     return _Linearisation(g, H, Jx, Jy)

@@ -1,16 +1,33 @@
-"""The ``paper`` solver: DiffGrad on the quaternion, t, s, b (and log focal) as published."""
+"""The ``paper`` solver: DiffGrad on the quaternion, t, s, b (and log focal) as published. It needs
+autograd, so torch and pytorch-optimizer (the ``paper`` extra) are imported when it runs."""
 
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
-import torch
 
+from ..extras import require
 from .objective import objective, project_all
-from .params import PoseDepthParams, quaternion_to_matrix, renormalise
+from .params import PoseDepthParams, renormalise
 from .problem import LevelLog, Problem
+
+
+def quaternion_to_matrix(q: Any) -> Any:
+    """Rotation matrix (torch) of the quaternion (w, x, y, z), normalised first (differentiable;
+    torch has no quaternion type and PyTorch3D's conversion comes with no CPU wheel)."""
+    import torch
+
+    w, x, y, z = q / torch.linalg.vector_norm(q)
+    return torch.stack(
+        [
+            torch.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)]),
+            torch.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)]),
+            torch.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]),
+        ]
+    )
 
 
 def converged(history: Sequence[float], window: int, eps: float) -> bool:
@@ -34,6 +51,18 @@ def solve_paper(problem: Problem, init: PoseDepthParams) -> tuple[PoseDepthParam
     coarse to fine with cumulative iteration limits, the supplement's convergence test, the best
     parameters of each level carried to the next; |t| renormalised at the end (see the module
     docstring)."""
+    require("pytorch_optimizer", "the paper solver (optimize.solver=paper)")
+    torch = require("torch", "the paper solver (optimize.solver=paper)")
+    previous = torch.get_num_threads()
+    torch.set_num_threads(max(1, problem.cfg.threads))
+    try:
+        return _diffgrad(problem.as_torch(), init)
+    finally:
+        torch.set_num_threads(previous)
+
+
+def _diffgrad(problem: Problem, init: PoseDepthParams) -> tuple[PoseDepthParams, list[LevelLog]]:
+    import torch
     from pytorch_optimizer import DiffGrad  # imports torch.distributed (~2 s): only when used
 
     cfg = problem.cfg

@@ -4,46 +4,106 @@ and what a solver reports per pyramid level."""
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, replace
+import math
+from dataclasses import asdict, dataclass, fields, replace
 from typing import Any
 
 import cv2
 import numpy as np
-import torch
-import torch.nn.functional as F
+from array_api_compat import is_torch_array
 
 from ..camera import Intrinsics
 from ..config import OptimizeConfig
 from ..depth.align import sample_at
+from ..jit import njit_cached
 from .importance import importance_map
 from .params import Points
 
 
-def sample_target(texture: torch.Tensor, x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
-    """Bilinear samples (C, N) of ``texture`` (1, C, H, W) at pixel positions (x, y); zero outside."""
-    h, w = texture.shape[-2:]
-    grid = torch.stack([x * (2.0 / (w - 1)) - 1.0, y * (2.0 / (h - 1)) - 1.0], dim=-1)
-    out = F.grid_sample(
-        texture, grid.view(1, 1, -1, 2), mode="bilinear", padding_mode="zeros", align_corners=True
-    )
-    return out[0, :, 0]
+def sample_target(texture: Any, x: Any, y: Any) -> Any:
+    """Bilinear samples (C, N) of ``texture`` (C, H, W) at pixel positions (x, y); a tap outside the
+    image counts as zero. NumPy arrays go through a compiled loop, torch tensors through
+    ``grid_sample`` (differentiable, for the ``paper`` solver); both give the same values.
+
+    >>> tex = np.arange(4, dtype=np.float32).reshape(1, 2, 2)
+    >>> sample_target(tex, np.array([0.5, 1.5], np.float32), np.array([0.5, 0.0], np.float32)).tolist()
+    [[1.5, 0.5]]
+    """
+    if is_torch_array(texture):
+        import torch
+        import torch.nn.functional as F
+
+        h, w = texture.shape[-2:]
+        grid = torch.stack([x * (2.0 / (w - 1)) - 1.0, y * (2.0 / (h - 1)) - 1.0], dim=-1)
+        out = F.grid_sample(
+            texture[None],
+            grid.view(1, 1, -1, 2),
+            mode="bilinear",
+            padding_mode="zeros",
+            align_corners=True,
+        )
+        return out[0, :, 0]
+    return _bilinear(texture, x, y, False)[0]
+
+
+def sample_target_with_gradient(texture: np.ndarray, x: np.ndarray, y: np.ndarray):
+    """:func:`sample_target` (C, N) with its derivatives in x and in y, each (C, N): the derivative of
+    the bilinear interpolant itself (what autograd through ``grid_sample`` gives), in one pass."""
+    return _bilinear(texture, x, y, True)
+
+
+# Written by hand: OpenCV's remap has no derivative and scipy's map_coordinates neither (and both
+# return one channel per call); one loop gives every channel and both derivatives per tap.
+@njit_cached(nogil=True)
+def _bilinear(texture, x, y, with_gradient):  # pragma: no cover - compiled
+    c, h, w = texture.shape
+    n = x.shape[0]
+    out = np.zeros((c, n), np.float32)
+    m = n if with_gradient else 0
+    gx = np.zeros((c, m), np.float32)
+    gy = np.zeros((c, m), np.float32)
+    for i in range(n):
+        xi, yi = np.float64(x[i]), np.float64(y[i])
+        if not (xi > -1.0 and yi > -1.0 and xi < w and yi < h):
+            continue
+        x0, y0 = math.floor(xi), math.floor(yi)
+        fx, fy = xi - x0, yi - y0
+        for dy in range(2):
+            yy = y0 + dy
+            if yy < 0 or yy >= h:
+                continue
+            wy = fy if dy else 1.0 - fy
+            sy = 1.0 if dy else -1.0
+            for dx in range(2):
+                xx = x0 + dx
+                if xx < 0 or xx >= w:
+                    continue
+                wx = fx if dx else 1.0 - fx
+                sx = 1.0 if dx else -1.0
+                for k in range(c):
+                    v = texture[k, yy, xx]
+                    out[k, i] += wx * wy * v
+                    if with_gradient:
+                        gx[k, i] += sx * wy * v
+                        gy[k, i] += wx * sy * v
+    return out, gx, gy
 
 
 @dataclass
 class PhotoLevel:
     """One pyramid level: the target texture and the source pixels that are reprojected into it."""
 
-    texture: torch.Tensor  # (1, 5, H, W): alpha-premultiplied target RGB, alpha, W
-    gradients: torch.Tensor  # (1, 8, H, W): d/dx of channels 0-3, then d/dy (central differences)
-    support: torch.Tensor  # (1, 1, H, W): W max-filtered by the fast solver's margin
+    texture: Any  # (5, H, W) float32: alpha-premultiplied target RGB, alpha, W
+    gradients: Any  # (8, H, W): d/dx of channels 0-3, then d/dy (central differences)
+    support: Any  # (1, H, W): W max-filtered by the fast solver's margin
     known_area: float  # |M|: sum of alpha at this level
     K_t: Intrinsics
     points: Points  # the photometric points: source pixels with a depth
-    colour: torch.Tensor  # (N, 3) their RGB in [0, 1]
-    all_values: torch.Tensor  # depth values of every source pixel of the level (L_negD)
+    colour: Any  # (N, 3) their RGB in [0, 1]
+    all_values: Any  # depth values of every source pixel of the level (L_negD)
     value_range: tuple[float, float]  # their min and max
 
-    def subset(self, keep: torch.Tensor) -> PhotoLevel:
+    def subset(self, keep: Any) -> PhotoLevel:
         """The same level with only the photometric points ``keep`` (L_negD still sees all pixels)."""
         return replace(self, points=self.points.take(keep), colour=self.colour[keep])
 
@@ -53,8 +113,8 @@ class FeatureSet:
     """Matched keypoints at the finest level: source points, target pixels, W at the target pixels."""
 
     points: Points
-    q_t: torch.Tensor  # (M, 2)
-    weight: torch.Tensor  # (M,)
+    q_t: Any  # (M, 2)
+    weight: Any  # (M,)
 
 
 @dataclass
@@ -67,6 +127,20 @@ class Problem:
     cfg: OptimizeConfig
     barron_c: float  # px at the finest level
     prior_ref: float = 0.0  # l0 of the focal prior (set from the initial objective)
+
+    def as_torch(self) -> Problem:
+        """The same problem with torch tensors sharing the NumPy arrays' memory (the ``paper``
+        solver differentiates the objective with autograd)."""
+        import torch
+
+        def convert(obj: Any) -> Any:
+            if isinstance(obj, np.ndarray):
+                return torch.from_numpy(obj)
+            if isinstance(obj, (PhotoLevel, FeatureSet, Points)):
+                return replace(obj, **{f.name: convert(getattr(obj, f.name)) for f in fields(obj)})
+            return obj
+
+        return replace(self, levels=[convert(lv) for lv in self.levels], features=convert(self.features))
 
 
 def _pyr_down(image: np.ndarray) -> np.ndarray:
@@ -81,12 +155,12 @@ def _level_intrinsics(K: Intrinsics, level: int, width: int, height: int) -> Int
     return replace(K, fx=K.fx * s, fy=K.fy * s, cx=K.cx * s, cy=K.cy * s, width=width, height=height)
 
 
-def _central_gradients(texture: torch.Tensor) -> torch.Tensor:
-    """Central differences in x and y of (1, C, H, W), zero outside the image (as the sampler)."""
-    p = F.pad(texture, (1, 1, 1, 1))
-    gx = 0.5 * (p[..., 1:-1, 2:] - p[..., 1:-1, :-2])
-    gy = 0.5 * (p[..., 2:, 1:-1] - p[..., :-2, 1:-1])
-    return torch.cat([gx, gy], dim=1).contiguous()
+def _central_gradients(texture: np.ndarray) -> np.ndarray:
+    """Central differences in x and y of (C, H, W), zero outside the image (as the sampler)."""
+    p = np.pad(texture, ((0, 0), (1, 1), (1, 1)))
+    gx = 0.5 * (p[:, 1:-1, 2:] - p[:, 1:-1, :-2])
+    gy = 0.5 * (p[:, 2:, 1:-1] - p[:, :-2, 1:-1])
+    return np.ascontiguousarray(np.concatenate([gx, gy], axis=0))
 
 
 def _resize_views(target, hole, source, values, K_t, K_s, pts_t, pts_s, max_side):
@@ -161,18 +235,18 @@ def build_problem(
         val = np.where(ok_k, src[..., 3] / np.maximum(den, 1e-6), np.nan)
         ii, jj = np.nonzero(ok_k)
         K_sk = _level_intrinsics(K_s, k, ws, hs)
-        texture = torch.from_numpy(np.ascontiguousarray(tex.transpose(2, 0, 1)))[None]
+        texture = np.ascontiguousarray(tex.transpose(2, 0, 1))
         support = cv2.dilate(np.ascontiguousarray(tex[..., 4]), np.ones((margin, margin), np.uint8))
         points = Points.from_pixels(np.stack([jj, ii], axis=1).astype(np.float64), K_sk, val[ii, jj])
         levels.append(
             PhotoLevel(
                 texture=texture,
-                gradients=_central_gradients(texture[:, :4]),
-                support=torch.from_numpy(support)[None, None],
+                gradients=_central_gradients(texture[:4]),
+                support=support[None],
                 known_area=float(tex[..., 3].sum()),
                 K_t=_level_intrinsics(K_t, k, wt, ht),
                 points=points,
-                colour=torch.from_numpy(src[ii, jj, :3].copy()),
+                colour=src[ii, jj, :3].copy(),
                 all_values=points.value,
                 value_range=(float(np.nanmin(val)), float(np.nanmax(val))) if ii.size else (1.0, 1.0),
             )
@@ -182,8 +256,8 @@ def build_problem(
     keep = np.isfinite(fv) & np.isfinite(fw)
     features = FeatureSet(
         Points.from_pixels(pts_s[keep], K_s, fv[keep]),
-        torch.from_numpy(pts_t[keep].astype(np.float32)),
-        torch.from_numpy(fw[keep].astype(np.float32)),
+        pts_t[keep].astype(np.float32),
+        fw[keep].astype(np.float32),
     )
     return Problem(levels, features, space, cfg, cfg.barron_c_px * px_scale)
 

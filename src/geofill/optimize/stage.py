@@ -9,14 +9,13 @@ from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
 import numpy as np
-import torch
+from threadpoolctl import threadpool_limits
 
 from ..camera import Intrinsics, rotation_error_deg, translation_direction_error_deg
 from ..config import OptimizeConfig
 from ..depth.align import AlignedDepth, to_depth
 from .fast_solver import solve_fast
 from .objective import evaluate
-from .paper_solver import solve_paper
 from .params import PoseDepthParams
 from .problem import build_problem
 
@@ -103,12 +102,10 @@ def optimize_pose_depth(
 
     ``target``/``source``: float32 RGB in [0, 1]; ``hole``: bool; ``pts_t``/``pts_s``: matched pixels
     (the pose inliers). Rejected results keep the initial geometry, with the reason in the report."""
-    previous_threads = torch.get_num_threads()
-    torch.set_num_threads(max(1, cfg.threads))
-    try:
+    # BLAS threads for the solver's small matrix products (restored afterwards; the paper solver's
+    # torch threads follow the same setting, see solve_paper).
+    with threadpool_limits(limits=max(1, cfg.threads)):
         return _optimize(target, hole, source, K_t, K_s, T, depth, pts_t, pts_s, cfg)
-    finally:
-        torch.set_num_threads(previous_threads)
 
 
 def _optimize(target, hole, source, K_t, K_s, T, depth, pts_t, pts_s, cfg) -> OptimizationResult:
@@ -121,10 +118,13 @@ def _optimize(target, hole, source, K_t, K_s, T, depth, pts_t, pts_s, cfg) -> Op
         return unchanged
     values = fit_space_values(depth)
     problem = build_problem(target, hole, source, values, depth.space, K_t, K_s, pts_t, pts_s, cfg)
-    report.n_features = int(problem.features.q_t.shape[0])
+    report.n_features = len(problem.features.points)
     initial = evaluate(problem, init)
     problem.prior_ref = float(initial.total)
-    solve = solve_paper if cfg.solver == "paper" else solve_fast
+    if cfg.solver == "paper":
+        from .paper_solver import solve_paper as solve
+    else:
+        solve = solve_fast
     params, logs = solve(problem, init)
     final = evaluate(problem, params)
     report.initial_objective, report.initial_terms = float(initial.total), initial.to_json()
