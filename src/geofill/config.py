@@ -260,6 +260,11 @@ class OptimizeConfig:
     long side of the optimisation's finest level."""
 
     enabled: bool = True
+    #: Fewest pose-inlier matches on the source depth for the optimisation to run (L_feat is what
+    #: holds the pose against the photometric term's far minima); with fewer, or with matches
+    #: from a ladder rung that did not verify, the initial geometry is kept and the report says
+    #: why. 20 is the pose stage's own floor (``geometry.min_inliers``); 0 never skips.
+    min_features: Annotated[int, Range(0, 100000)] = 20
     #: ``fast``: Levenberg-Marquardt on the same objective; ``paper``: DiffGrad, as published.
     solver: Literal["fast", "paper"] = "fast"
     #: Weights of L_photo, L_feat and L_negD (paper: 10, 10, 0.5).

@@ -404,6 +404,8 @@ def _report(ctx: FillContext, refs: list[ReferenceArtifacts], fusion: Fusion, pr
     used = [r for r in refs if r.usable]
     fallbacks = [f"reference {r.index}: {r.dropped}" for r in refs if r.dropped]
     for r in used:
+        if r.geometry.thin:
+            fallbacks.append(f"reference {r.index}: initial geometry kept: {r.geometry.skipped}")
         opt = r.geometry.optimization
         if opt is not None and opt.status == "rejected":
             fallbacks.append(
