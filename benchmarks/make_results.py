@@ -88,6 +88,22 @@ SECTIONS = [
         "sweep.md",
     ),
     Section(
+        "wide",
+        "Wide baselines: plain SIFT against the matching ladder (`benchmarks/wide_results.py`)",
+        "The 5 `dev_wide_*` pairs and the 2 towers, 100-px brush holes (seed 0): each filled with the ladder "
+        "capped at plain SIFT (`matching.max_rung=sift`, a fill before the ladder) and with the default "
+        "ladder; fallback, rung, verified matches, the final pose's rotation / translation-direction error "
+        "against the GT (deg; nan without GT), hole PSNR against the homography baseline, time.",
+        [PY, "benchmarks/wide_results.py"],
+    ),
+    Section(
+        "wide_ladder",
+        "The ladder on every DEV pair: rung and matching time (`benchmarks/wide_bench.py`)",
+        "Matching alone, plain SIFT against the ladder interleaved (3 repeats, median); on the pairs where "
+        "plain SIFT verifies, the ladder must cost nothing and give the same matches.",
+        [PY, "benchmarks/wide_bench.py", "--repeats", "3"],
+    ),
+    Section(
         "pairs",
         "Pose accuracy and stage times per pair (`benchmarks/pairs.py`)",
         "Default configuration. Pose errors against the GT pose where meta.json has one (TUM's pose is an "

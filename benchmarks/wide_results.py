@@ -1,0 +1,97 @@
+"""Wide baselines: the wide DEV pairs and the towers filled with plain SIFT only (the ladder capped
+at its first rung: what a fill did before the ladder) and with the default ladder, against the
+homography baseline, on the evaluation's 100-px brush holes (seed 0).
+
+    .venv/bin/python benchmarks/wide_results.py [--pairs DIR ...] [--seed 0]
+
+Per pair and variant: whether the fill used the reference or fell back to single-image inpainting,
+the rung its matches came from, verified matches, the rotation / translation-direction error of the
+fill's final pose against the ground truth (where the pair has one), hole PSNR, and the fill's time
+(in process, one run: the pairs and variants are interleaved on a shared CPU). Figures, not a test.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from geofill.camera import pose_errors_deg
+from geofill.config import FillConfig
+from geofill.evaluation.baselines import homography_fill_detailed
+from geofill.evaluation.metrics import psnr
+from geofill.evaluation.runner import load_pairs, pair_mask
+from geofill.pipeline import fill
+
+DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "pairs"
+WIDE = ("dev_wide_", "dev_mast3r_nle_tower_")
+
+
+def _pose_errors(pair, result) -> tuple[float, float]:
+    """(rotation, translation direction) error in degrees of the fill's pose; nan without GT or pose."""
+    gt = pair.meta.get("T_source_to_target")
+    refs = [r for r in result.references if r.usable]
+    if gt is None or not refs:
+        return math.nan, math.nan
+    r, t = pose_errors_deg(refs[0].geometry.T, np.array(gt))
+    return float(r), float(t)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument(
+        "--pairs", action="append", help="pair folder(s) (default: the wide DEV pairs and towers)"
+    )
+    ap.add_argument("--seed", type=int, default=0)
+    args = ap.parse_args(argv)
+    pairs = load_pairs(args.pairs or [str(DATA)])
+    if not args.pairs:
+        pairs = [p for p in pairs if p.id.startswith(WIDE)]
+    cfg = FillConfig()
+    variants = {"sift": cfg.updated({"matching.max_rung": "sift"}), "ladder": cfg}
+    head = ("variant", "status", "rung", "verified", "R_err", "t_err", "PSNR_h", "homog", "time_s")
+    print(f"{'pair':<38s} " + " ".join(f"{h:>9s}" for h in head))
+    summary: dict[str, list[tuple[bool, float, float, float]]] = {v: [] for v in variants}
+    for pair in pairs:
+        hole = pair_mask(pair, args.seed, 100.0)
+        homog = psnr(homography_fill_detailed(pair.target, hole, pair.source).image, pair.target, hole)
+        for name, c in variants.items():
+            t0 = time.perf_counter()
+            result = fill(
+                pair.target,
+                hole,
+                [pair.source],
+                c,
+                target_exif=pair.exif.target,
+                source_exifs=[pair.exif.source],
+            )
+            took = time.perf_counter() - t0
+            match = result.report.references[0].get("match", {})
+            fell_back = result.report.status != "reference"
+            r_err, t_err = _pose_errors(pair, result)
+            score = psnr(result.image, pair.target, hole)
+            summary[name].append((fell_back, score, homog, took))
+            print(
+                f"{pair.id[:38]:<38s} {name:>9s} {'fallback' if fell_back else 'reference':>9s} "
+                f"{match.get('rung', '-'):>9s} {match.get('n_verified', 0):>9d} {r_err:>9.2f} {t_err:>9.2f} "
+                f"{score:>9.2f} {homog:>9.2f} {took:>9.2f}",
+                flush=True,
+            )
+    for name, rows in summary.items():
+        if not rows:
+            continue
+        mine, theirs = statistics.mean(r[1] for r in rows), statistics.mean(r[2] for r in rows)
+        print(
+            f"{name}: {sum(r[0] for r in rows)}/{len(rows)} fall back; mean hole PSNR {mine:.2f} dB vs "
+            f"homography {theirs:.2f} dB; median time {statistics.median(r[3] for r in rows):.2f} s"
+        )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
