@@ -151,8 +151,9 @@ class MatchingConfig:
     #: The escalation ladder (:mod:`geofill.matching.ladder`) climbs at most to this rung:
     #: ``sift`` -> ``loose`` (more keypoints, looser ratio, stricter verification) -> ``asift``
     #: (affine-simulated SIFT) -> ``guided`` (matching along the epipolar lines of the best F so
-    #: far). ``sift`` is plain SIFT matching alone.
-    max_rung: Literal["sift", "loose", "asift", "guided"] = "guided"
+    #: far), with ``learned`` (see below) between ``loose`` and ``asift`` when it is switched on.
+    #: ``sift`` is plain SIFT matching alone.
+    max_rung: Literal["sift", "loose", "learned", "asift", "guided"] = "guided"
     #: The ladder starts no new rung after this many seconds (ASIFT also stops between its
     #: simulated views). 30 s: room for SIFT, the loose rung and most of ASIFT's views at the
     #: working size on 2 cores, under the depth and optimisation stages' time of a wide pair.
@@ -186,6 +187,19 @@ class MatchingConfig:
     #: (0.9 gave 142 verified matches on a rendered 33-degree orbit, 77 % right; 0.8: 93, 96 %).
     guided_band_px: Annotated[float, Range(0.1, 100.0)] = 3.0
     guided_ratio: Annotated[float, Range(0.0, 1.0)] = 0.8
+    #: ``learned`` rung (between ``loose`` and ``asift``): an end-to-end keypoint + matcher ONNX
+    #: graph, e.g. the SuperPoint + LightGlue pipeline export (:mod:`geofill.matching.learned`).
+    #: ``off``: never; ``auto``: when its weights resolve (``learned_model``,
+    #: ``$GEOFILL_MATCHER_MODEL``, the cache), otherwise the rung is skipped and the report says
+    #: why; ``on``: required, an error when it cannot be used. Off by default: no weights ship.
+    learned: Literal["off", "auto", "on"] = "off"
+    #: Explicit matcher ONNX file; wins over the environment variable and the cache (implies ``on``).
+    learned_model: str | None = None
+    #: Long side (px) both images are resized to (at most) for the learned matcher.
+    learned_max_side: Annotated[int, Range(64, 8192)] = 1024
+    #: Allow downloading the matcher during a fill (``HF_HUB_OFFLINE=1`` forbids it too). Off by
+    #: default: a fill never reaches for the network; ``geofill models download`` does.
+    download: bool = False
 
     def ransac_px(self, px_scale: float) -> float:
         """The inlier threshold in pixels of an image ``px_scale`` times the 1280-px reference."""

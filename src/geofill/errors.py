@@ -64,6 +64,10 @@ class InpaintModelError(InputError):
     """A LaMa inpainting model that was asked for cannot be used (weights missing, unreadable, corrupt)."""
 
 
+class MatcherModelError(InputError):
+    """A learned matcher that was asked for cannot be used (weights missing, unreadable, corrupt)."""
+
+
 class ConfigError(GeoFillError):
     """A configuration value or file is invalid."""
 

@@ -44,6 +44,8 @@ class ModelEntry:
         the selected ``depth.model`` only)."""
         if self.path_key == "depth.model_path":
             return cfg.depth.model_path if cfg.depth.model == self.name else None
+        if self.path_key == "matching.learned_model":
+            return cfg.matching.learned_model
         return cfg.inpaint.lama_model
 
 
@@ -51,6 +53,7 @@ def registry() -> list[ModelEntry]:
     """Every model file geofill can use."""
     from .depth.onnx import MODELS
     from .inpaint import LAMA_WEIGHTS
+    from .matching.learned import MATCHER_WEIGHTS
 
     entries = [
         ModelEntry(name, m.weights, f"learned depth (depth.model = {name})", "depth.model_path")
@@ -59,6 +62,12 @@ def registry() -> list[ModelEntry]:
     return [
         *entries,
         ModelEntry("lama", LAMA_WEIGHTS, "single-image inpainting (inpaint.method)", "inpaint.lama_model"),
+        ModelEntry(
+            "superpoint-lightglue",
+            MATCHER_WEIGHTS,
+            "learned matching rung (matching.learned)",
+            "matching.learned_model",
+        ),
     ]
 
 

@@ -10,6 +10,9 @@ by a robust estimator (OpenCV USAC MAGSAC++ by default). What every easy pair us
 ``loose``: more SIFT keypoints and a looser ratio test (more true matches on wide baselines, and
 more outliers), verified more strictly: a tighter inlier threshold.
 
+``learned`` (only when ``matching.learned`` asks for it): an end-to-end keypoint + matcher ONNX
+graph (:mod:`geofill.matching.learned`), verified as strictly as ``loose``.
+
 ``asift``: affine-simulated SIFT (ASIFT, OpenCV ``AffineFeature``): each image is re-detected under
 simulated camera tilts, which recovers the matches that a strong viewpoint change destroys for
 SIFT; views run until the budget is spent.
@@ -45,7 +48,7 @@ ROBUST_METHODS = {"magsac": cv2.USAC_MAGSAC, "ransac": cv2.RANSAC, "lmeds": cv2.
 #: Fewer tentative matches than this cannot support a fundamental matrix fit (8-point + margin).
 MIN_MATCHES_FOR_F = 12
 #: The rungs in climbing order.
-RUNGS = ("sift", "loose", "asift", "guided")
+RUNGS = ("sift", "loose", "learned", "asift", "guided")
 
 
 @dataclass(frozen=True)
@@ -202,14 +205,36 @@ class _Ladder:
             self.features[key] = detect_sift_pair(self.gray, n, self.masks)
         return self.features[key]
 
-    def run(self, rung: str) -> _Candidate | None:
-        """The rung's verified matches; None when it has nothing to work on (guided matching
-        without a first geometry)."""
+    def learned(self) -> tuple[Features, Features, np.ndarray] | str:
+        """The learned matcher's matches as one-to-one keypoint sets (no descriptors), or why
+        there are none."""
+        from .learned import learned_matcher
+
+        matcher, why = learned_matcher(self.cfg)
+        if matcher is None:
+            return why
+        mt, ms, _ = matcher(*self.gray)
+        inside = ~self.hole[
+            np.clip(np.rint(mt[:, 1]).astype(int), 0, self.hole.shape[0] - 1),
+            np.clip(np.rint(mt[:, 0]).astype(int), 0, self.hole.shape[1] - 1),
+        ]
+        mt, ms = mt[inside], ms[inside]  # the hole is blanked, but its border is not evidence
+        none = np.zeros((len(mt), 0), np.float32)
+        return Features(mt, none), Features(ms, none), np.repeat(np.arange(len(mt))[:, None], 2, axis=1)
+
+    def run(self, rung: str) -> _Candidate | str:
+        """The rung's verified matches, or why it has nothing to work on (guided matching without a
+        first geometry, a learned matcher that is off or does not resolve)."""
         t0 = time.perf_counter()
         cfg, strict = self.cfg, self.threshold * self.cfg.strict_threshold_scale
         if rung == "sift":
             ft, fs = self.sift(cfg.max_features)
             pairs, thr = mutual_ratio_matches(ft.desc, fs.desc, cfg.ratio, cfg.mutual), self.threshold
+        elif rung == "learned":
+            got = self.learned()
+            if isinstance(got, str):
+                return got
+            (ft, fs, pairs), thr = got, strict
         elif rung == "loose":
             ft, fs = self.sift(cfg.loose_max_features)
             pairs, thr = mutual_ratio_matches(ft.desc, fs.desc, cfg.loose_ratio, False), strict
@@ -222,7 +247,7 @@ class _Ladder:
             pairs, thr = mutual_ratio_matches(ft.desc, fs.desc, cfg.asift_ratio, True), strict
         else:  # guided
             if self.best is None or self.best.F is None:
-                return None
+                return "no fundamental matrix to guide it"
             # The richest keypoint sets computed so far (ASIFT's when that rung ran).
             ft, fs = max(self.features.values(), key=lambda f: len(f[0]) * len(f[1]))
             band = epipolar_band(ft.pts, fs.pts, self.best.F, cfg.guided_band_px * max(self.scale, 0.5))
@@ -268,14 +293,20 @@ def match_pair(
     reports: list[RungReport] = []
     notes: list[str] = []
     budget_spent = False
+    if cfg.learned == "on" or cfg.learned_model:
+        from .learned import learned_matcher
+
+        learned_matcher(cfg)  # a required matcher that cannot be used is an error before any work
     for rung in RUNGS[: RUNGS.index(cfg.max_rung) + 1]:
+        if rung == "learned" and cfg.learned == "off" and not cfg.learned_model:
+            continue
         if reports and time.perf_counter() >= ladder.deadline:
             budget_spent = True
             notes.append(f"time budget {cfg.time_budget_s:g} s spent before rung {rung}")
             break
         cand = ladder.run(rung)
-        if cand is None:
-            notes.append(f"rung {rung} skipped: no fundamental matrix to guide it")
+        if isinstance(cand, str):
+            notes.append(f"rung {rung} skipped: {cand}")
             continue
         reports.append(cand.report)
         if cand.report.verified:
