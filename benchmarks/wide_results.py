@@ -5,9 +5,11 @@ homography baseline, on the evaluation's 100-px brush holes (seed 0).
     .venv/bin/python benchmarks/wide_results.py [--pairs DIR ...] [--seed 0]
 
 Per pair and variant: whether the fill used the reference or fell back to single-image inpainting,
-the rung its matches came from, verified matches, the rotation / translation-direction error of the
-fill's final pose against the ground truth (where the pair has one), hole PSNR, and the fill's time
-(in process, one run: the pairs and variants are interleaved on a shared CPU). Figures, not a test.
+the rung its matches came from, verified matches, the joint optimisation's status (``skipped``:
+the evidence was too thin, or the pose failed) and its feature matches on the source depth, the
+rotation / translation-direction error of the fill's final pose against the ground truth (where
+the pair has one), hole PSNR, and the fill's time (in process, one run: the pairs and variants
+are interleaved on a shared CPU). Figures, not a test.
 """
 
 from __future__ import annotations
@@ -54,7 +56,19 @@ def main(argv: list[str] | None = None) -> int:
         pairs = [p for p in pairs if p.id.startswith(WIDE)]
     cfg = FillConfig()
     variants = {"sift": cfg.updated({"matching.max_rung": "sift"}), "ladder": cfg}
-    head = ("variant", "status", "rung", "verified", "R_err", "t_err", "PSNR_h", "homog", "time_s")
+    head = (
+        "variant",
+        "status",
+        "rung",
+        "verified",
+        "optimise",
+        "features",
+        "R_err",
+        "t_err",
+        "PSNR_h",
+        "homog",
+        "time_s",
+    )
     print(f"{'pair':<38s} " + " ".join(f"{h:>9s}" for h in head))
     summary: dict[str, list[tuple[bool, float, float, float]]] = {v: [] for v in variants}
     for pair in pairs:
@@ -72,13 +86,15 @@ def main(argv: list[str] | None = None) -> int:
             )
             took = time.perf_counter() - t0
             match = result.report.references[0].get("match", {})
+            opt = result.report.references[0].get("optimize", {})
             fell_back = result.report.status != "reference"
             r_err, t_err = _pose_errors(pair, result)
             score = psnr(result.image, pair.target, hole)
             summary[name].append((fell_back, score, homog, took))
             print(
                 f"{pair.id[:38]:<38s} {name:>9s} {'fallback' if fell_back else 'reference':>9s} "
-                f"{match.get('rung', '-'):>9s} {match.get('n_verified', 0):>9d} {r_err:>9.2f} {t_err:>9.2f} "
+                f"{match.get('rung', '-'):>9s} {match.get('n_verified', 0):>9d} {opt.get('status', '-'):>9s} "
+                f"{opt.get('n_features', 0):>9d} {r_err:>9.2f} {t_err:>9.2f} "
                 f"{score:>9.2f} {homog:>9.2f} {took:>9.2f}",
                 flush=True,
             )
