@@ -23,7 +23,7 @@ torch = pytest.importorskip("torch")  # the reference side of these comparisons
 
 def test_sampler_and_its_derivative_equal_grid_sample_and_autograd():
     rng = np.random.default_rng(0)
-    texture = rng.uniform(0, 1, (5, 20, 30)).astype(np.float32)
+    texture = rng.uniform(0, 1, (20, 30, 5)).astype(np.float32)
     # Inside, on the border, partly outside (taps outside count as zero) and far away.
     x = np.r_[rng.uniform(-1.5, 30.5, 400), 0.0, 29.0, 1e6].astype(np.float32)
     y = np.r_[rng.uniform(-1.5, 20.5, 400), 0.0, 19.0, 1e6].astype(np.float32)

@@ -21,11 +21,11 @@ from .params import Points
 
 
 def sample_target(texture: Any, x: Any, y: Any) -> Any:
-    """Bilinear samples (C, N) of ``texture`` (C, H, W) at pixel positions (x, y); a tap outside the
+    """Bilinear samples (C, N) of ``texture`` (H, W, C) at pixel positions (x, y); a tap outside the
     image counts as zero. NumPy arrays go through a compiled loop, torch tensors through
     ``grid_sample`` (differentiable, for the ``paper`` solver); both give the same values.
 
-    >>> tex = np.arange(4, dtype=np.float32).reshape(1, 2, 2)
+    >>> tex = np.arange(4, dtype=np.float32).reshape(2, 2, 1)
     >>> sample_target(tex, np.array([0.5, 1.5], np.float32), np.array([0.5, 0.0], np.float32)).tolist()
     [[1.5, 0.5]]
     """
@@ -33,10 +33,10 @@ def sample_target(texture: Any, x: Any, y: Any) -> Any:
         import torch
         import torch.nn.functional as F
 
-        h, w = texture.shape[-2:]
+        h, w = texture.shape[:2]
         grid = torch.stack([x * (2.0 / (w - 1)) - 1.0, y * (2.0 / (h - 1)) - 1.0], dim=-1)
         out = F.grid_sample(
-            texture[None],
+            texture.permute(2, 0, 1)[None],
             grid.view(1, 1, -1, 2),
             mode="bilinear",
             padding_mode="zeros",
@@ -53,10 +53,11 @@ def sample_target_with_gradient(texture: np.ndarray, x: np.ndarray, y: np.ndarra
 
 
 # Written by hand: OpenCV's remap has no derivative and scipy's map_coordinates neither (and both
-# return one channel per call); one loop gives every channel and both derivatives per tap.
+# return one channel per call); one loop gives every channel and both derivatives per tap, and the
+# channels-last layout makes a tap one cache line.
 @njit_cached(nogil=True)
 def _bilinear(texture, x, y, with_gradient):  # pragma: no cover - compiled
-    c, h, w = texture.shape
+    h, w, c = texture.shape
     n = x.shape[0]
     out = np.zeros((c, n), np.float32)
     m = n if with_gradient else 0
@@ -81,7 +82,7 @@ def _bilinear(texture, x, y, with_gradient):  # pragma: no cover - compiled
                 wx = fx if dx else 1.0 - fx
                 sx = 1.0 if dx else -1.0
                 for k in range(c):
-                    v = texture[k, yy, xx]
+                    v = texture[yy, xx, k]
                     out[k, i] += wx * wy * v
                     if with_gradient:
                         gx[k, i] += sx * wy * v
@@ -93,9 +94,9 @@ def _bilinear(texture, x, y, with_gradient):  # pragma: no cover - compiled
 class PhotoLevel:
     """One pyramid level: the target texture and the source pixels that are reprojected into it."""
 
-    texture: Any  # (5, H, W) float32: alpha-premultiplied target RGB, alpha, W
-    gradients: Any  # (8, H, W): d/dx of channels 0-3, then d/dy (central differences)
-    support: Any  # (1, H, W): W max-filtered by the fast solver's margin
+    texture: Any  # (H, W, 5) float32: alpha-premultiplied target RGB, alpha, W
+    gradients: Any  # (H, W, 8): d/dx of channels 0-3, then d/dy (central differences)
+    support: Any  # (H, W, 1): W max-filtered by the fast solver's margin
     known_area: float  # |M|: sum of alpha at this level
     K_t: Intrinsics
     points: Points  # the photometric points: source pixels with a depth
@@ -156,11 +157,11 @@ def _level_intrinsics(K: Intrinsics, level: int, width: int, height: int) -> Int
 
 
 def _central_gradients(texture: np.ndarray) -> np.ndarray:
-    """Central differences in x and y of (C, H, W), zero outside the image (as the sampler)."""
-    p = np.pad(texture, ((0, 0), (1, 1), (1, 1)))
-    gx = 0.5 * (p[:, 1:-1, 2:] - p[:, 1:-1, :-2])
-    gy = 0.5 * (p[:, 2:, 1:-1] - p[:, :-2, 1:-1])
-    return np.ascontiguousarray(np.concatenate([gx, gy], axis=0))
+    """Central differences in x and y of (H, W, C), zero outside the image (as the sampler)."""
+    p = np.pad(texture, ((1, 1), (1, 1), (0, 0)))
+    gx = 0.5 * (p[1:-1, 2:] - p[1:-1, :-2])
+    gy = 0.5 * (p[2:, 1:-1] - p[:-2, 1:-1])
+    return np.ascontiguousarray(np.concatenate([gx, gy], axis=2))
 
 
 def _resize_views(target, hole, source, values, K_t, K_s, pts_t, pts_s, max_side):
@@ -235,14 +236,14 @@ def build_problem(
         val = np.where(ok_k, src[..., 3] / np.maximum(den, 1e-6), np.nan)
         ii, jj = np.nonzero(ok_k)
         K_sk = _level_intrinsics(K_s, k, ws, hs)
-        texture = np.ascontiguousarray(tex.transpose(2, 0, 1))
+        texture = np.ascontiguousarray(tex)
         support = cv2.dilate(np.ascontiguousarray(tex[..., 4]), np.ones((margin, margin), np.uint8))
         points = Points.from_pixels(np.stack([jj, ii], axis=1).astype(np.float64), K_sk, val[ii, jj])
         levels.append(
             PhotoLevel(
                 texture=texture,
-                gradients=_central_gradients(texture[:4]),
-                support=support[None],
+                gradients=_central_gradients(texture[..., :4]),
+                support=support[..., None],
                 known_area=float(tex[..., 3].sum()),
                 K_t=_level_intrinsics(K_t, k, wt, ht),
                 points=points,
