@@ -5,6 +5,9 @@ from __future__ import annotations
 
 import hashlib
 import http.server
+import os
+import subprocess
+import sys
 import threading
 from pathlib import Path
 
@@ -176,13 +179,38 @@ def test_hub_cache_is_used_when_verified(env, monkeypatch):
     snap = hub_cache / "models--org--tiny-depth" / "snapshots" / REV / FILE
     snap.parent.mkdir(parents=True)
     snap.write_bytes(PAYLOAD)
-    from huggingface_hub import constants
-
-    monkeypatch.setattr(constants, "HF_HUB_CACHE", str(hub_cache))
+    monkeypatch.setenv("HF_HUB_CACHE", str(hub_cache))
     monkeypatch.setenv("HF_HUB_OFFLINE", "1")
     got = resolve_weights(SPEC)
     assert isinstance(got, ResolvedWeights) and got.source == "hub-cache" and got.verified
     assert Path(got.path) == snap
+
+
+def test_hub_cache_dir_follows_the_hubs_variables(monkeypatch, tmp_path):
+    for var in ("HF_HUB_CACHE", "HUGGINGFACE_HUB_CACHE", "HF_HOME", "XDG_CACHE_HOME"):
+        monkeypatch.delenv(var, raising=False)
+    assert W.hub_cache_dir() == Path.home() / ".cache" / "huggingface" / "hub"
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    assert W.hub_cache_dir() == tmp_path / "xdg" / "huggingface" / "hub"
+    monkeypatch.setenv("HF_HOME", str(tmp_path / "home"))
+    assert W.hub_cache_dir() == tmp_path / "home" / "hub"
+    monkeypatch.setenv("HUGGINGFACE_HUB_CACHE", str(tmp_path / "legacy"))
+    assert W.hub_cache_dir() == tmp_path / "legacy"
+    monkeypatch.setenv("HF_HUB_CACHE", str(tmp_path / "new"))
+    assert W.hub_cache_dir() == tmp_path / "new"
+
+
+def test_cache_miss_does_not_import_the_hub_client(tmp_path):
+    """A miss is a file-system check: a fill on the weight-free default never imports huggingface_hub."""
+    code = (
+        "import sys; from geofill.weights import resolve_weights, WeightsSpec, WeightsUnavailable\n"
+        "got = resolve_weights(WeightsSpec('m', 'f.onnx', repo_id='org/m'), allow_download=False)\n"
+        "assert isinstance(got, WeightsUnavailable), got\n"
+        "print('huggingface_hub' in sys.modules)"
+    )
+    env = {**os.environ, "GEOFILL_CACHE": str(tmp_path / "c"), "HF_HUB_CACHE": str(tmp_path / "hf")}
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
 
 
 def test_cache_dir_follows_environment(monkeypatch, tmp_path):

@@ -133,6 +133,9 @@ class MatchingConfig:
     #: SIFT keypoints per image (strongest kept); 0 = no limit. 4000 gave the same pose accuracy
     #: as 8000 on the GT-pose pairs (median 0.18 deg / 0.95 deg) at half the matching time.
     max_features: Annotated[int, Range(0, 1_000_000)] = 4000
+    #: The ``sift`` rung detects on the working images downsized to this long side (px; 0 = the
+    #: working size itself); positions are mapped back to working pixels.
+    sift_max_side: Annotated[int, Range(0, 16384)] = 0
     #: Lowe's ratio test threshold.
     ratio: Annotated[float, Range(0.0, 1.0)] = 0.8
     #: Keep only matches that are each other's nearest neighbour.

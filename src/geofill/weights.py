@@ -148,12 +148,29 @@ def _verified(spec: WeightsSpec) -> bool:
     return spec.sha256 is not None or spec.size is not None
 
 
+def hub_cache_dir() -> Path:
+    """The Hugging Face hub cache as ``huggingface_hub`` finds it: ``$HF_HUB_CACHE``, the legacy
+    ``$HUGGINGFACE_HUB_CACHE``, else ``hub`` under ``$HF_HOME`` (default
+    ``$XDG_CACHE_HOME/huggingface`` or ``~/.cache/huggingface``), read at call time."""
+    home = os.environ.get("HF_HOME") or os.path.join(
+        os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache"), "huggingface"
+    )
+    given = os.environ.get("HF_HUB_CACHE") or os.environ.get("HUGGINGFACE_HUB_CACHE")
+    return Path(os.path.expandvars(os.path.expanduser(given or os.path.join(home, "hub"))))
+
+
 def _hub_cache_file(spec: WeightsSpec) -> Path | None:
     if not spec.repo_id or not available("huggingface_hub"):
         return None
+    cache = hub_cache_dir()
+    # The repo's folder (the hub's documented cache layout) is looked for first: importing
+    # huggingface_hub costs ~0.15 s, which a fill whose weights were never downloaded (the
+    # weight-free default) must not pay. The hub's own look-up resolves refs and snapshots.
+    if not (cache / f"models--{spec.repo_id.replace('/', '--')}").is_dir():
+        return None
     from huggingface_hub import try_to_load_from_cache
 
-    found = try_to_load_from_cache(spec.repo_id, spec.filename, revision=spec.revision)
+    found = try_to_load_from_cache(spec.repo_id, spec.filename, cache_dir=cache, revision=spec.revision)
     return Path(found) if isinstance(found, str) and Path(found).is_file() else None
 
 

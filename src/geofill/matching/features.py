@@ -49,22 +49,42 @@ def _root_sift(kps, desc) -> Features:
     return Features(np.array([kp.pt for kp in kps], dtype=np.float64), desc)
 
 
-def detect_sift(gray: np.ndarray, max_features: int, mask: np.ndarray | None = None) -> Features:
-    """SIFT keypoints (the ``max_features`` strongest; 0 = all) with RootSIFT descriptors."""
-    kps, desc = cv2.SIFT_create(nfeatures=max_features).detectAndCompute(gray, mask)
-    return _root_sift(kps, desc)
+def downsized(
+    gray: np.ndarray, mask: np.ndarray | None, max_side: int
+) -> tuple[np.ndarray, np.ndarray | None, float]:
+    """``gray`` (and its detection ``mask``) area-resized to a long side of at most ``max_side``
+    (0 = as is), with the factor ``f``: a pixel ``p`` there is ``(p + 0.5) / f - 0.5`` here."""
+    f = min(1.0, max_side / max(gray.shape)) if max_side else 1.0
+    if f < 1.0:
+        gray = cv2.resize(gray, None, fx=f, fy=f, interpolation=cv2.INTER_AREA)
+        if mask is not None:
+            mask = cv2.resize(mask, gray.shape[::-1], interpolation=cv2.INTER_NEAREST)
+    return gray, mask, f
+
+
+def detect_sift(
+    gray: np.ndarray, max_features: int, mask: np.ndarray | None = None, max_side: int = 0
+) -> Features:
+    """SIFT keypoints (the ``max_features`` strongest; 0 = all) with RootSIFT descriptors, detected
+    on ``gray`` downsized to a long side of at most ``max_side`` (0 = as is); positions in
+    ``gray``'s pixels."""
+    small, mask, f = downsized(gray, mask, max_side)
+    kps, desc = cv2.SIFT_create(nfeatures=max_features).detectAndCompute(small, mask)
+    feats = _root_sift(kps, desc)
+    return feats if f == 1.0 else Features((feats.pts + 0.5) / f - 0.5, feats.desc)
 
 
 def detect_sift_pair(
     grays: tuple[np.ndarray, np.ndarray],
     max_features: int,
     masks: tuple[np.ndarray | None, np.ndarray | None],
+    max_side: int = 0,
 ) -> tuple[Features, Features]:
     """:func:`detect_sift` on two images at once, one thread each: OpenCV releases the GIL and
     SIFT barely uses its own threads (berlin, 1280x960 both: 1.25 s one after the other, 0.74 s
     at once on 2 cores). The results are the same as one after the other."""
     with ThreadPoolExecutor(2, thread_name_prefix="sift") as pool:
-        a, b = pool.map(detect_sift, grays, (max_features, max_features), masks)
+        a, b = pool.map(detect_sift, grays, (max_features,) * 2, masks, (max_side,) * 2)
     return a, b
 
 
@@ -98,11 +118,7 @@ def detect_asift(
     views = asift_views(max_tilt)
     per_image: list[tuple[list, list, float]] = []
     for gray, mask in zip(grays, masks, strict=True):
-        f = min(1.0, max_side / max(gray.shape))
-        if f < 1.0:
-            gray = cv2.resize(gray, None, fx=f, fy=f, interpolation=cv2.INTER_AREA)
-            if mask is not None:
-                mask = cv2.resize(mask, gray.shape[::-1], interpolation=cv2.INTER_NEAREST)
+        gray, mask, f = downsized(gray, mask, max_side)
         per_image.append(([], [], f, gray, mask))
     detector = cv2.AffineFeature_create(cv2.SIFT_create(nfeatures=features_per_view))
     used = 0

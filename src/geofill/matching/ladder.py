@@ -199,10 +199,10 @@ class _Ladder:
         self.features: dict[str, tuple[Features, Features]] = {}
         self.best: _Candidate | None = None
 
-    def sift(self, n: int) -> tuple[Features, Features]:
-        key = f"sift{n}"
+    def sift(self, n: int, max_side: int = 0) -> tuple[Features, Features]:
+        key = f"sift{n}@{max_side}"
         if key not in self.features:
-            self.features[key] = detect_sift_pair(self.gray, n, self.masks)
+            self.features[key] = detect_sift_pair(self.gray, n, self.masks, max_side)
         return self.features[key]
 
     def learned(self) -> tuple[Features, Features, np.ndarray] | str:
@@ -228,7 +228,7 @@ class _Ladder:
         t0 = time.perf_counter()
         cfg, strict = self.cfg, self.threshold * self.cfg.strict_threshold_scale
         if rung == "sift":
-            ft, fs = self.sift(cfg.max_features)
+            ft, fs = self.sift(cfg.max_features, cfg.sift_max_side)
             pairs, thr = mutual_ratio_matches(ft.desc, fs.desc, cfg.ratio, cfg.mutual), self.threshold
         elif rung == "learned":
             got = self.learned()
