@@ -1,7 +1,7 @@
 """Whole-process wall time and peak RSS of ``geofill fill`` as a user runs it, each run paired with
 the standalone homography baseline (``benchmarks/homography_baseline.py``) on the same files, and
 the start-up time of ``geofill --help``, ``geofill config`` and ``geofill serve`` (until its port
-accepts a connection).
+accepts a connection, and until its page has been served).
 
 Runs alternate geofill, baseline, geofill, baseline, ... after one unmeasured warm-up of each (it
 fills numba's and the OS's caches), so drift in the machine's load hits both alike: the median of the
@@ -27,6 +27,7 @@ import subprocess
 import sys
 import tempfile
 import time
+import urllib.request
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
@@ -63,10 +64,12 @@ def _timed(cmd: list[str]) -> tuple[float, float]:
     return wall, usage.ru_maxrss / 1024.0
 
 
-def _serve_start(port: int) -> float:
-    """Seconds from starting ``geofill serve`` until its port accepts a TCP connection."""
+def _serve_start(port: int) -> tuple[float, float]:
+    """Seconds from starting ``geofill serve`` until its port accepts a TCP connection, and until
+    its page (``GET /``) has been served whole: what a person opening the address waits for."""
     t0 = time.perf_counter()
     proc = subprocess.Popen([_geofill(), "serve", "--port", str(port)], stderr=subprocess.DEVNULL)
+    accepted = None
     try:
         while True:
             if proc.poll() is not None:
@@ -75,7 +78,10 @@ def _serve_start(port: int) -> float:
                 )
             try:
                 socket.create_connection(("127.0.0.1", port), timeout=0.05).close()
-                return time.perf_counter() - t0
+                accepted = accepted or time.perf_counter() - t0
+                with urllib.request.urlopen(f"http://127.0.0.1:{port}/", timeout=5) as resp:
+                    if resp.status == 200 and resp.read():
+                        return accepted, time.perf_counter() - t0
             except OSError:
                 time.sleep(0.005)
     finally:
@@ -121,10 +127,11 @@ def main(argv: list[str] | None = None) -> int:
         _timed(cmd)
         times = [_timed(cmd)[0] for _ in range(args.runs)]
         print(f"{name:<16s} median {statistics.median(times):.3f} s  (runs {args.runs})")
-    times = [_serve_start(8765 + i) for i in range(args.runs + 1)][1:]
+    starts = [_serve_start(8765 + i) for i in range(args.runs + 1)][1:]
+    port_s, page_s = (statistics.median(s[i] for s in starts) for i in (0, 1))
     print(
-        f"{'geofill serve':<16s} median {statistics.median(times):.3f} s"
-        f"  (until the port accepts; runs {args.runs})"
+        f"{'geofill serve':<16s} median {port_s:.3f} s until the port accepts, "
+        f"{page_s:.3f} s until the page is served (runs {args.runs})"
     )
     medians: dict[str, float] = {}
     print(

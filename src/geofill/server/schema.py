@@ -50,6 +50,24 @@ class ConfigField:
     locked: bool  # set by the server's operator only
 
 
+@functools.cache
+def _source_lines(path: str) -> tuple[str, ...]:
+    with open(path, encoding="utf-8") as f:
+        return tuple(f.read().splitlines())
+
+
+def _class_body(cls: type) -> list[str]:
+    """The lines of top-level class ``cls`` after its ``class`` line, up to the next top-level
+    statement. ``inspect.getsource`` parses the whole module for every class (14 ms each, 0.14 s
+    of the server's start for the config's sections); the config classes are all top-level."""
+    lines = _source_lines(inspect.getsourcefile(cls))
+    head = re.compile(rf"class {cls.__name__}\b")
+    start = next(i for i, line in enumerate(lines) if head.match(line)) + 1
+    end = next((i for i in range(start, len(lines)) if lines[i] and not lines[i][0].isspace()), len(lines))
+    return list(lines[start:end])
+
+
+@functools.cache
 def field_descriptions(cls: type) -> dict[str, str]:
     """``#:`` comment block above each field of dataclass ``cls`` (a block shared by consecutive
     fields with no comment of their own describes each of them)."""
@@ -57,7 +75,7 @@ def field_descriptions(cls: type) -> dict[str, str]:
     names = {f.name for f in dataclasses.fields(cls)}
     pending: list[str] = []
     current = ""
-    for line in inspect.getsource(cls).splitlines()[1:]:
+    for line in _class_body(cls):
         stripped = line.strip()
         m = _FIELD_LINE.match(line)
         if stripped.startswith("#:"):
