@@ -32,6 +32,7 @@ import cv2
 import numpy as np
 
 from .config import FillConfig, FusionConfig
+from .inpaint import mask_window
 from .resolution import config_px
 
 if TYPE_CHECKING:
@@ -45,31 +46,37 @@ _SEAM_MAX_SIDE = 640
 class Fusion:
     """The fused render at target resolution (HxWx3 uint8, zero where ``alpha`` is False), its
     coverage, and ``labels`` (HxW int16): the reference (1-based) that supplies each covered hole
-    pixel, 0 elsewhere. ``image``/``alpha`` are None when no reference could help."""
+    pixel, 0 elsewhere. ``image``/``alpha`` are None when no reference could help. ``window``: the
+    rows and columns outside which ``labels`` is 0 and ``alpha`` False (at 4K the renders cover a
+    fifth of the image, and whole-image passes over the labels cost more than the fusion)."""
 
     image: np.ndarray | None
     alpha: np.ndarray | None
     labels: np.ndarray
     method: str
     scores: tuple[float, ...] = ()  # per used reference (in the order given): mean score where it supplies
+    window: tuple[slice, slice] = (slice(None), slice(None))
 
     def supplied_fractions(self, hole: np.ndarray, n_references: int) -> list[float]:
         """Fraction of the hole each reference (in the order given) supplies."""
-        n = max(int(hole.sum()), 1)
-        counts = np.bincount(self.labels[hole].ravel(), minlength=n_references + 1)
+        n = max(int(np.count_nonzero(hole)), 1)
+        rows, cols = self.window
+        counts = np.bincount(self.labels[rows, cols][hole[rows, cols]].ravel(), minlength=n_references + 1)
         return [float(c) / n for c in counts[1 : n_references + 1]]
 
     def source_map(self, hole: np.ndarray) -> np.ndarray:
         """HxW int16: -1 outside the hole, 0 painted by single-image inpainting, k from reference k."""
-        out = self.labels.astype(np.int16, copy=True)
-        out[~hole] = -1
+        out = np.full(hole.shape, -1, np.int16)
+        rows, cols = mask_window(hole, 0)
+        out[rows, cols] = np.where(hole[rows, cols], self.labels[rows, cols], -1)
         return out
 
     def summary(self) -> str:
         if self.alpha is None:
             return "no reference to fuse"
-        ks = np.unique(self.labels[self.labels > 0])
-        return f"{self.method}: {len(ks)} reference(s) supply {int((self.labels > 0).sum())} px"
+        labels = self.labels[self.window]
+        ks = np.unique(labels[labels > 0])
+        return f"{self.method}: {len(ks)} reference(s) supply {int(np.count_nonzero(labels))} px"
 
     def report(self) -> dict[str, Any]:
         return {"method": self.method, "scores": list(self.scores)}
@@ -79,13 +86,15 @@ def fuse_references(
     target: np.ndarray, hole: np.ndarray, refs: Sequence[ReferenceArtifacts], cfg: FillConfig
 ) -> Fusion:
     """Fuse the refined renders of the usable references ``refs`` (see the module docstring)."""
-    empty = np.zeros(hole.shape, np.int16)
+    labels = np.zeros(hole.shape, np.int16)
     if not refs:
-        return Fusion(None, None, empty, "none")
+        return Fusion(None, None, labels, "none")
     if len(refs) == 1:
+        # Its refined render passes through as it is; only the labels are written, in its window.
         r = refs[0].refined
-        labels = np.where(r.alpha & hole, refs[0].index, 0).astype(np.int16)
-        return Fusion(r.image, r.alpha, labels, "single reference")
+        rows, cols = r.render.window()
+        labels[rows, cols][r.alpha[rows, cols] & hole[rows, cols]] = refs[0].index
+        return Fusion(r.image, r.alpha, labels, "single reference", window=(rows, cols))
     fc = cfg.fusion
     # A canonical order (by content) so that the order the references were given in cannot change
     # the result: the graph cut visits pairs of references in list order.
@@ -114,11 +123,10 @@ def fuse_references(
     else:
         weights = _feathered_weights(best, alphas, covered, config_px(fc.feather_px, hole.shape))
     fused_w = np.rint(np.einsum("khw,khwc->hwc", weights, images)).clip(0, 255).astype(np.uint8)
-    image = np.zeros_like(target)
+    image = np.zeros(target.shape, target.dtype)  # calloc: the pages outside the window stay untouched
     image[rows, cols] = fused_w
     alpha = np.zeros(hole.shape, bool)
     alpha[rows, cols] = covered
-    labels = empty.copy()
     index = np.array([r.index for r in refs], np.int16)
     labels[rows, cols] = np.where(covered & hole_w, index[best], 0)
     supplies = [(best == k) & covered & hole_w for k in range(len(refs))]
@@ -126,7 +134,7 @@ def fuse_references(
         float(scores[k][supplies[k]].mean()) if supplies[k].any() else 0.0
         for k in sorted(range(len(refs)), key=lambda k: index[k])
     )
-    return Fusion(image, alpha, labels, f"{fc.seams} of {len(refs)} references", mean_scores)
+    return Fusion(image, alpha, labels, f"{fc.seams} of {len(refs)} references", mean_scores, (rows, cols))
 
 
 def reference_score(
