@@ -28,6 +28,7 @@ import numpy as np
 from .camera import Intrinsics
 from .config import RenderConfig
 from .errors import ReferenceUnusable
+from .inpaint import mask_window
 from .resolution import config_px
 
 if TYPE_CHECKING:
@@ -93,14 +94,8 @@ class ReferenceRender:
 
 def render_roi(hole: np.ndarray, margin: int) -> tuple[int, int, int, int]:
     """Bounding box (x0, y0, x1, y1), half-open, of the hole grown by ``margin`` px, clipped."""
-    ys, xs = np.nonzero(hole)
-    h, w = hole.shape
-    return (
-        max(int(xs.min()) - margin, 0),
-        max(int(ys.min()) - margin, 0),
-        min(int(xs.max()) + margin + 1, w),
-        min(int(ys.max()) + margin + 1, h),
-    )
+    rows, cols = mask_window(hole, margin)
+    return cols.start, rows.start, cols.stop, rows.stop
 
 
 def footprint_ok(a: np.ndarray, b: np.ndarray, threshold: float) -> np.ndarray:
@@ -240,17 +235,27 @@ def _near_plane(depth: np.ndarray, K_s: Intrinsics, K_t: Intrinsics, T: np.ndarr
     return 1e-6 * (float(np.median(sample)) if sample.size else 1.0)
 
 
+def _block_reduce(ufunc: np.ufunc, a: np.ndarray, tile: int) -> np.ndarray:
+    """``ufunc`` reduced over each ``tile`` x ``tile`` block of ``a`` (the last blocks may be smaller)."""
+    h, w = a.shape
+    whole = h // tile * tile
+    # Rows first, through a reshape of the whole blocks (contiguous rows: 15x faster than reduceat
+    # over rows, and no padded copy of the image).
+    rows = ufunc.reduce(a[:whole].reshape(-1, tile, w), axis=1)
+    if whole < h:
+        rows = np.vstack([rows, ufunc.reduce(a[whole:], axis=0, keepdims=True)])
+    return ufunc.reduceat(rows, np.arange(0, w, tile), axis=1)
+
+
 def _tile_extremes(depth: np.ndarray, tile: int) -> tuple[np.ndarray, np.ndarray]:
     """Smallest and largest valid depth of the vertices of each ``tile`` x ``tile`` quad tile (its
     vertices reach into the next tile by one row and column); NaN where it has none."""
     h, w = depth.shape
     ty, tx = -(-(h - 1) // tile), -(-(w - 1) // tile)
-    padded = np.full(((ty + 1) * tile, (tx + 1) * tile), np.nan, np.float32)
-    padded[:h, :w] = depth
-    blocks = padded.reshape(ty + 1, tile, tx + 1, tile)
-    # Rows first: reducing over the contiguous axes last is 3x faster than both at once.
-    lo = np.fmin.reduce(np.fmin.reduce(blocks, axis=1), axis=2)
-    hi = np.fmax.reduce(np.fmax.reduce(blocks, axis=1), axis=2)
+    lo, hi = (np.full((ty + 1, tx + 1), np.nan, np.float32) for _ in range(2))
+    by, bx = -(-h // tile), -(-w // tile)
+    lo[:by, :bx] = _block_reduce(np.fmin, depth, tile)
+    hi[:by, :bx] = _block_reduce(np.fmax, depth, tile)
     # A quad tile's vertices lie in its own block and the first row/column of the next ones.
     lo = np.fmin(np.fmin(lo[:-1, :-1], lo[1:, :-1]), np.fmin(lo[:-1, 1:], lo[1:, 1:]))
     hi = np.fmax(np.fmax(hi[:-1, :-1], hi[1:, :-1]), np.fmax(hi[:-1, 1:], hi[1:, 1:]))
@@ -358,7 +363,8 @@ def render_reference(
         depth_s = cv2.resize(depth_s, (K_s.width, K_s.height), interpolation=cv2.INTER_LINEAR)
     roi = render_roi(hole, int(config_px(margin_px, hole.shape)))
     rendered = render_mesh(depth_s, K_s, K_t, geometry.T, cfg.edge_threshold, roi)
-    coverage = float(rendered.alpha[hole].mean())
+    rows, cols = rendered.window()  # nothing is rendered outside it
+    coverage = np.count_nonzero(rendered.alpha[rows, cols] & hole[rows, cols]) / np.count_nonzero(hole)
     if coverage < cfg.min_hole_coverage:
         raise ReferenceUnusable(
             f"it covers only {100 * coverage:.1f}% of the hole "
