@@ -8,7 +8,8 @@ from types import SimpleNamespace
 import numpy as np
 
 from geofill.config import FillConfig
-from geofill.fusion import Fusion, fuse_references
+from geofill.fusion import Fusion, _known_ring, fuse_references
+from geofill.inpaint import mask_window
 from geofill.render import RenderResult
 
 
@@ -59,3 +60,14 @@ def test_window_defaults_to_the_whole_image():
     fusion = Fusion(np.zeros((4, 5, 3), np.uint8), labels > 0, labels, "test")
     hole = np.ones((4, 5), bool)
     assert fusion.supplied_fractions(hole, 1) == [1 / 20]
+
+
+def test_known_ring_of_a_window_holding_the_hole_equals_the_whole_image():
+    hole = np.zeros((200, 300), bool)
+    hole[50:120, 80:200] = True
+    hole[130:135, 60:70] = True
+    whole = _known_ring(hole, 16.0)
+    assert whole.sum() > 0 and not (whole & hole).any()
+    for margin in (0, 24):  # the bare bounding box, and one the whole ring fits in
+        rows, cols = mask_window(hole, margin)
+        np.testing.assert_array_equal(_known_ring(hole[rows, cols], 16.0), whole[rows, cols])

@@ -98,12 +98,14 @@ def fuse_references(
     fc = cfg.fusion
     # A canonical order (by content) so that the order the references were given in cannot change
     # the result: the graph cut visits pairs of references in list order.
-    refs = sorted(refs, key=lambda r: hashlib.blake2b(r.source.tobytes(), digest_size=16).digest())
+    refs = sorted(
+        refs, key=lambda r: hashlib.blake2b(np.ascontiguousarray(r.source).data, digest_size=16).digest()
+    )  # the buffer itself: tobytes() would copy each source image first
     rows, cols = _window(refs, hole)
     hole_w = hole[rows, cols]
     alphas = np.stack([r.refined.alpha[rows, cols] for r in refs])
     images = np.stack([r.refined.image[rows, cols] for r in refs]).astype(np.float32)
-    ring = _known_ring(hole, config_px(cfg.refine.band_px, hole.shape))[rows, cols]
+    ring = _known_ring(hole_w, config_px(cfg.refine.band_px, hole.shape))
     scores = np.stack(
         [
             reference_score(r, images[k], target[rows, cols], ring, rows, cols, hole.shape, fc)
@@ -166,7 +168,8 @@ def reference_score(
 
 
 def _known_ring(hole: np.ndarray, width_px: float) -> np.ndarray:
-    """Known pixels within ``width_px`` of the hole."""
+    """Known pixels within ``width_px`` of the hole (the same in any window holding the hole: the
+    two-pass chamfer distance to a pixel is reached by a path inside their bounding box)."""
     dist = cv2.distanceTransform((~hole).astype(np.uint8), cv2.DIST_L2, 3)
     return ~hole & (dist <= max(width_px, 1.0))
 
@@ -203,8 +206,10 @@ def _consensus(images: np.ndarray, alphas: np.ndarray, scale: float) -> np.ndarr
 
 
 def _window(refs: Sequence[ReferenceArtifacts], hole: np.ndarray) -> tuple[slice, slice]:
-    """The smallest window holding every reference's render window."""
-    x0, y0, x1, y1 = hole.shape[1], hole.shape[0], 0, 0
+    """The smallest window holding the hole and every reference's render window (the pipeline's
+    render windows hold the hole already)."""
+    rows, cols = mask_window(hole, 0)
+    x0, y0, x1, y1 = cols.start, rows.start, cols.stop, rows.stop
     for r in refs:
         roi = r.refined.render.roi or (0, 0, hole.shape[1], hole.shape[0])
         x0, y0, x1, y1 = min(x0, roi[0]), min(y0, roi[1]), max(x1, roi[2]), max(y1, roi[3])
