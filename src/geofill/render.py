@@ -79,11 +79,17 @@ class RenderResult:
 @dataclass(frozen=True)
 class ReferenceRender:
     """The render stage's result: the source mesh seen from the target at the target's input
-    resolution, its colours (HxWx3 uint8, zero where not covered) and the hole fraction it covers."""
+    resolution, the source image it samples and the hole fraction it covers."""
 
     render: RenderResult
-    warped: np.ndarray
+    source: np.ndarray
     hole_coverage: float
+
+    @property
+    def warped(self) -> np.ndarray:
+        """The render's colours (HxWx3 uint8, zero where not covered). Sampled on demand: only the
+        debug output shows them, and refinement samples its own flow-corrected field."""
+        return self.render.sample(self.source)
 
     def summary(self) -> str:
         return f"source covers {100 * self.hole_coverage:.1f}% of the hole"
@@ -370,4 +376,4 @@ def render_reference(
             f"it covers only {100 * coverage:.1f}% of the hole "
             f"(< {100 * cfg.min_hole_coverage:.0f}%): it does not see what the hole hides"
         )
-    return ReferenceRender(rendered, rendered.sample(source), coverage)
+    return ReferenceRender(rendered, source, coverage)
