@@ -5,10 +5,12 @@ from __future__ import annotations
 
 from types import SimpleNamespace
 
+import cv2
 import numpy as np
+import pytest
 
 from geofill.config import FillConfig
-from geofill.fusion import Fusion, _known_ring, fuse_references
+from geofill.fusion import Fusion, _known_ring, fuse_references, gaussian_blur
 from geofill.inpaint import mask_window
 from geofill.render import RenderResult
 
@@ -71,3 +73,14 @@ def test_known_ring_of_a_window_holding_the_hole_equals_the_whole_image():
     for margin in (0, 24):  # the bare bounding box, and one the whole ring fits in
         rows, cols = mask_window(hole, margin)
         np.testing.assert_array_equal(_known_ring(hole[rows, cols], 16.0), whole[rows, cols])
+
+
+@pytest.mark.parametrize("sigma", [3.0, 48.0])  # the direct filter, and the Fourier-domain one
+def test_gaussian_blur_equals_opencvs_to_float_rounding(sigma):
+    rng = np.random.default_rng(1)
+    image = np.zeros((300, 260), np.float32)
+    image[100:140, 20:200] = rng.random((40, 180))  # a ring-like band near one border
+    ref = cv2.GaussianBlur(image, (0, 0), sigma)
+    out = gaussian_blur(image, sigma)
+    assert out.dtype == np.float32 and out.shape == image.shape
+    np.testing.assert_allclose(out, ref, rtol=0, atol=1e-5 * ref.max())

@@ -40,6 +40,8 @@ if TYPE_CHECKING:
 
 #: Long side (px) at which the graph cut runs; labels are upsampled to the input resolution.
 _SEAM_MAX_SIDE = 640
+#: Gaussian kernels from this many taps on are applied in the Fourier domain (see gaussian_blur).
+_DFT_BLUR_TAPS = 160
 
 
 @dataclass(frozen=True)
@@ -186,9 +188,24 @@ def _ring_error(
     err = np.abs(image - target.astype(np.float32)).mean(axis=-1) * w
     overall = float(err.sum() / w.sum())
     eps = 1e-3
-    num = cv2.GaussianBlur(err, (0, 0), sigma)
-    den = cv2.GaussianBlur(w, (0, 0), sigma)
+    num = gaussian_blur(err, sigma)
+    den = gaussian_blur(w, sigma)
     return (num + eps * overall) / (den + eps)
+
+
+def gaussian_blur(image: np.ndarray, sigma: float) -> np.ndarray:
+    """``cv2.GaussianBlur(image, (0, 0), sigma)`` of a float32 image (same kernel, reflect-101
+    border), equal to it up to float rounding (1e-6 relative).
+
+    GaussianBlur filters directly, at a cost proportional to the kernel's taps; ``cv2.filter2D``
+    convolves in the Fourier domain once a 2-D kernel is large. On a 1253 x 1246 window (a 4K hole's)
+    the ring error's sigma of 48 px (385 taps) took 293 vs 56 ms, 193 taps 84 vs 38 ms; at 129 taps
+    and below on smaller windows the direct filter is as fast or faster, so it stays there."""
+    taps = round(sigma * 8 + 1) | 1  # OpenCV's kernel size for float images
+    if taps < _DFT_BLUR_TAPS:
+        return cv2.GaussianBlur(image, (0, 0), sigma)
+    k = cv2.getGaussianKernel(taps, sigma, cv2.CV_32F)
+    return cv2.filter2D(image, -1, k @ k.T, borderType=cv2.BORDER_REFLECT_101)
 
 
 def _consensus(images: np.ndarray, alphas: np.ndarray, scale: float) -> np.ndarray:
