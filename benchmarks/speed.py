@@ -4,16 +4,21 @@
 Each size runs in a fresh Python process that reads the images from files and writes the result, as
 the CLI does, so its peak RSS is that of one real fill. Peak RSS is VmHWM from /proc/self/status
 (Linux): ru_maxrss would carry the parent's high-water mark over fork+exec. Inputs are a synthetic ray-cast
-pair (default) or a real pair resized to each size (``--pair DIR``).
+pair (default) or a real pair resized to each size (``--pair DIR``). ``--runs N`` reports per-stage
+medians of N measured processes per size; ``--baseline SRC`` runs another source tree (a checkout's
+``src`` folder) on the same inputs, alternating with this one run by run so that load from other
+jobs falls on both alike, and adds its medians and the ratio (this / baseline).
 
     .venv/bin/python benchmarks/speed.py [--sizes 1280x720,3840x2160] [--pair ../shared/data/pairs/X]
-    [--set key=value ...]
+    [--runs 3] [--baseline ../main/src] [--set key=value ...]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -92,10 +97,61 @@ def write_inputs(size: tuple[int, int], pair_dir: str | None, folder: Path) -> N
     write_pair_files(folder, target, source, hole)
 
 
+def _measure(folder: Path, overrides: list[str], src: str | None) -> dict:
+    """One fill in a fresh process (``src`` first on its path when given); its JSON record."""
+    cmd = [sys.executable, __file__, "--child", str(folder), *(x for s in overrides for x in ("--set", s))]
+    env = {**os.environ, "PYTHONPATH": src} if src else None
+    out = subprocess.run(cmd, check=True, capture_output=True, text=True, env=env).stdout
+    return json.loads(out.strip().splitlines()[-1])
+
+
+def _median(records: list[dict]) -> dict:
+    """Per-stage, total and peak-RSS medians of several records of one size and tree."""
+    stages = list(dict.fromkeys(s for r in records for s in r["stages"]))
+    out = dict(records[0])
+    out["stages"] = {
+        s: statistics.median(r["stages"][s] for r in records if s in r["stages"]) for s in stages
+    }
+    for key in ("total", "peak_rss_mb", "after_import_rss_mb"):
+        out[key] = statistics.median(r[key] for r in records)
+    out["peak_rss_max_mb"] = max(r["peak_rss_mb"] for r in records)
+    return out
+
+
+def _table(results: list[dict], baseline: list[dict] | None) -> None:
+    cols = []
+    for i, r in enumerate(results):
+        cols.append((r["size"], r))
+        if baseline is not None:
+            cols.append((f"{r['size']} base", baseline[i]))
+    stages = list(dict.fromkeys(s for _, r in cols for s in r["stages"]))
+    # (label, value of a record, decimals)
+    rows = [(s, lambda r, s=s: r["stages"].get(s, float("nan")), 3) for s in stages]
+    rows += [("total", lambda r: r["total"], 3), ("peak RSS (MB)", lambda r: r["peak_rss_mb"], 0)]
+    if any(r["peak_rss_max_mb"] != r["peak_rss_mb"] for _, r in cols):
+        rows.append(("max RSS (MB)", lambda r: r["peak_rss_max_mb"], 0))
+    rows.append(("after import", lambda r: r["after_import_rss_mb"], 0))
+    width = max(14, *(len(name) + 2 for name, _ in cols))
+    print(f"{'stage (s)':<14s}" + "".join(f"{name:>{width}s}" for name, _ in cols))
+    for label, get, decimals in rows:
+        print(f"{label:<14s}" + "".join(f"{get(r):{width}.{decimals}f}" for _, r in cols))
+    print(f"{'status':<14s}" + "".join(f"{r['status']:>{width}s}" for _, r in cols))
+    if baseline is not None:
+        print("ratio this / baseline (medians):")
+        for r, b in zip(results, baseline, strict=True):
+            parts = [f"{s} {r['stages'][s] / b['stages'][s]:.2f}" for s in r["stages"] if b["stages"].get(s)]
+            print(f"  {r['size']}: total {r['total'] / b['total']:.2f}, peak RSS "
+                  f"{r['peak_rss_mb'] / b['peak_rss_mb']:.2f}; " + ", ".join(parts))  # fmt: skip
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sizes", default=DEFAULT_SIZES)
     ap.add_argument("--pair", help="a real pair folder, resized to each size (default: synthetic scene)")
+    ap.add_argument("--runs", type=int, default=1, help="measured processes per size (medians)")
+    ap.add_argument(
+        "--baseline", metavar="SRC", help="another source tree to run alternately, e.g. ../main/src"
+    )
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
     ap.add_argument("--child", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
@@ -103,29 +159,25 @@ def main(argv: list[str] | None = None) -> int:
         _child(Path(args.child), args.set)
         return 0
     sizes = [tuple(int(v) for v in s.split("x")) for s in args.sizes.split(",")]
-    results = []
+    trees = [None] if args.baseline is None else [None, str(Path(args.baseline).resolve())]
+    results: list[list[dict]] = [[] for _ in trees]
     for w, h in sizes:
         with tempfile.TemporaryDirectory() as tmp:
             write_inputs((w, h), args.pair, Path(tmp))
-            cmd = [sys.executable, __file__, "--child", tmp, *(x for s in args.set for x in ("--set", s))]
-            # One warm-up run so numba's on-disk JIT cache is filled; the second run is measured.
-            subprocess.run(cmd, check=True, capture_output=True)
-            out = subprocess.run(cmd, check=True, capture_output=True, text=True).stdout
-        r = json.loads(out.strip().splitlines()[-1])
-        r["size"] = f"{w}x{h}"
-        r["pixels"] = w * h
-        results.append(r)
-    stages = list(dict.fromkeys(s for r in results for s in r["stages"]))
-    print(f"{'stage (s)':<14s}" + "".join(f"{r['size']:>12s}" for r in results))
-    for s in stages:
-        print(f"{s:<14s}" + "".join(f"{r['stages'].get(s, float('nan')):12.3f}" for r in results))
-    print(f"{'total':<14s}" + "".join(f"{r['total']:12.3f}" for r in results))
-    print(f"{'peak RSS (MB)':<14s}" + "".join(f"{r['peak_rss_mb']:12.0f}" for r in results))
-    print(f"{'after import':<14s}" + "".join(f"{r['after_import_rss_mb']:12.0f}" for r in results))
-    print(f"{'status':<14s}" + "".join(f"{r['status']:>12s}" for r in results))
-    if len(results) >= 2:
-        px = np.log([r["pixels"] for r in results])
-        t = np.log([r["total"] for r in results])
+            for src in trees:  # one warm-up run each so numba's on-disk JIT cache is filled
+                _measure(Path(tmp), args.set, src)
+            records: list[list[dict]] = [[] for _ in trees]
+            for _ in range(max(1, args.runs)):
+                for k, src in enumerate(trees):
+                    records[k].append(_measure(Path(tmp), args.set, src))
+        for k in range(len(trees)):
+            r = _median(records[k])
+            r["size"], r["pixels"] = f"{w}x{h}", w * h
+            results[k].append(r)
+    _table(results[0], results[1] if args.baseline else None)
+    if len(results[0]) >= 2:
+        px = np.log([r["pixels"] for r in results[0]])
+        t = np.log([r["total"] for r in results[0]])
         slope = np.polyfit(px, t, 1)[0]
         print(f"time grows as pixels^{slope:.2f} (least-squares slope of log time vs log pixels)")
     return 0

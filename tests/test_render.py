@@ -8,10 +8,11 @@ import numba
 import numpy as np
 import pytest
 
+import geofill.render as render_module
 from geofill.camera import Intrinsics, make_pose
 from geofill.evaluation.metrics import psnr
 from geofill.jit import njit_cached
-from geofill.render import render_mesh, triangle_masks
+from geofill.render import project_source_grid, render_mesh, render_roi, triangle_masks
 from geofill.synthetic import depth_edges, make_pair
 
 K = Intrinsics.from_focal(300.0, 160, 120)
@@ -122,6 +123,62 @@ def test_render_buffers_are_float32_and_empty_outside_the_roi():
     assert np.isinf(r.depth[outside]).all()
     sampled = r.sample(np.full((120, 160, 3), 77, np.uint8))
     assert (sampled[30:70, 20:60] == 77).all() and not sampled[outside].any()
+
+
+def _scene_render_inputs(seed: int = 3, width: int = 320, height: int = 240):
+    p = make_pair(seed=seed, width=width, height=height)
+    K_s = Intrinsics.from_matrix(p.K_source, width, height)
+    K_t = Intrinsics.from_matrix(p.K_target, width, height)
+    return p, K_s, K_t
+
+
+def test_tile_culling_renders_the_same_field_as_the_whole_grid(monkeypatch):
+    """Only the source tiles that can reach the ROI are rasterised; one tile spanning the whole grid
+    (nothing culled) must give the identical buffers, bit for bit, with some vertices invalid."""
+    p, K_s, K_t = _scene_render_inputs()
+    depth = p.depth_source.copy()
+    depth[100:130, 40:90] = np.nan  # no surface there
+    roi = render_roi(p.hole, 12)
+    culled = render_mesh(depth, K_s, K_t, p.T_source_to_target, 0.04, roi)
+    monkeypatch.setattr(render_module, "_TILE", 4096)
+    whole = render_mesh(depth, K_s, K_t, p.T_source_to_target, 0.04, roi)
+    assert culled.alpha.sum() > 0.9 * p.hole.sum()
+    for name in ("map_x", "map_y", "depth", "alpha"):
+        np.testing.assert_array_equal(getattr(culled, name), getattr(whole, name))
+
+
+def test_roi_window_equals_the_whole_view_render_there():
+    p, K_s, K_t = _scene_render_inputs(seed=5)
+    roi = render_roi(p.hole, 8)
+    x0, y0, x1, y1 = roi
+    part = render_mesh(p.depth_source, K_s, K_t, p.T_source_to_target, 0.04, roi)
+    whole = render_mesh(p.depth_source, K_s, K_t, p.T_source_to_target, 0.04)
+    for name in ("map_x", "map_y", "depth"):
+        np.testing.assert_array_equal(getattr(part, name)[y0:y1, x0:x1], getattr(whole, name)[y0:y1, x0:x1])
+
+
+def test_tiles_in_roi_keep_every_tile_with_a_vertex_in_the_roi():
+    """The corner bound is conservative (every vertex landing in the ROI is in a kept tile) and
+    still drops most of the grid for a hole-sized ROI; a tile reaching behind the target camera is
+    kept."""
+    p, K_s, K_t = _scene_render_inputs()
+    roi = render_roi(p.hole, 12)
+    tile = 16
+    kept = render_module._tiles_in_roi(p.depth_source, K_s, K_t, p.T_source_to_target, roi, tile)
+    u, v, _ = project_source_grid(p.depth_source, K_s, K_t, p.T_source_to_target)
+    x0, y0, x1, y1 = roi
+    inside = (u > x0 - 1) & (u < x1) & (v > y0 - 1) & (v < y1)
+    ii, jj = np.nonzero(inside[:-1, :-1])  # quad corners; their quads' tiles must be kept
+    assert kept[ii // tile, jj // tile].all()
+    assert kept.mean() < 0.6
+    # A pose that puts the left part of the scene behind the target camera.
+    T = make_pose(np.eye(3), [12.0, 0.0, 0.0]) @ make_pose(
+        cv2.Rodrigues(np.array([0.0, np.pi / 2, 0.0]))[0], [0.0, 0.0, 0.0]
+    )
+    behind = render_module._tiles_in_roi(p.depth_source, K_s, K_t, T, roi, tile)
+    _, _, z = project_source_grid(p.depth_source, K_s, K_t, T)
+    ii, jj = np.nonzero(z[:-1, :-1] <= 0)
+    assert ii.size and behind[ii // tile, jj // tile].all()
 
 
 def _add_three(x):

@@ -32,6 +32,7 @@ import cv2
 import numpy as np
 
 from .config import FillConfig, FusionConfig
+from .inpaint import mask_window
 from .resolution import config_px
 
 if TYPE_CHECKING:
@@ -39,37 +40,45 @@ if TYPE_CHECKING:
 
 #: Long side (px) at which the graph cut runs; labels are upsampled to the input resolution.
 _SEAM_MAX_SIDE = 640
+#: Gaussian kernels from this many taps on are applied in the Fourier domain (see gaussian_blur).
+_DFT_BLUR_TAPS = 160
 
 
 @dataclass(frozen=True)
 class Fusion:
     """The fused render at target resolution (HxWx3 uint8, zero where ``alpha`` is False), its
     coverage, and ``labels`` (HxW int16): the reference (1-based) that supplies each covered hole
-    pixel, 0 elsewhere. ``image``/``alpha`` are None when no reference could help."""
+    pixel, 0 elsewhere. ``image``/``alpha`` are None when no reference could help. ``window``: the
+    rows and columns outside which ``labels`` is 0 and ``alpha`` False (at 4K the renders cover a
+    fifth of the image, and whole-image passes over the labels cost more than the fusion)."""
 
     image: np.ndarray | None
     alpha: np.ndarray | None
     labels: np.ndarray
     method: str
     scores: tuple[float, ...] = ()  # per used reference (in the order given): mean score where it supplies
+    window: tuple[slice, slice] = (slice(None), slice(None))
 
     def supplied_fractions(self, hole: np.ndarray, n_references: int) -> list[float]:
         """Fraction of the hole each reference (in the order given) supplies."""
-        n = max(int(hole.sum()), 1)
-        counts = np.bincount(self.labels[hole].ravel(), minlength=n_references + 1)
+        n = max(int(np.count_nonzero(hole)), 1)
+        rows, cols = self.window
+        counts = np.bincount(self.labels[rows, cols][hole[rows, cols]].ravel(), minlength=n_references + 1)
         return [float(c) / n for c in counts[1 : n_references + 1]]
 
     def source_map(self, hole: np.ndarray) -> np.ndarray:
         """HxW int16: -1 outside the hole, 0 painted by single-image inpainting, k from reference k."""
-        out = self.labels.astype(np.int16, copy=True)
-        out[~hole] = -1
+        out = np.full(hole.shape, -1, np.int16)
+        rows, cols = mask_window(hole, 0)
+        out[rows, cols] = np.where(hole[rows, cols], self.labels[rows, cols], -1)
         return out
 
     def summary(self) -> str:
         if self.alpha is None:
             return "no reference to fuse"
-        ks = np.unique(self.labels[self.labels > 0])
-        return f"{self.method}: {len(ks)} reference(s) supply {int((self.labels > 0).sum())} px"
+        labels = self.labels[self.window]
+        ks = np.unique(labels[labels > 0])
+        return f"{self.method}: {len(ks)} reference(s) supply {int(np.count_nonzero(labels))} px"
 
     def report(self) -> dict[str, Any]:
         return {"method": self.method, "scores": list(self.scores)}
@@ -79,22 +88,26 @@ def fuse_references(
     target: np.ndarray, hole: np.ndarray, refs: Sequence[ReferenceArtifacts], cfg: FillConfig
 ) -> Fusion:
     """Fuse the refined renders of the usable references ``refs`` (see the module docstring)."""
-    empty = np.zeros(hole.shape, np.int16)
+    labels = np.zeros(hole.shape, np.int16)
     if not refs:
-        return Fusion(None, None, empty, "none")
+        return Fusion(None, None, labels, "none")
     if len(refs) == 1:
+        # Its refined render passes through as it is; only the labels are written, in its window.
         r = refs[0].refined
-        labels = np.where(r.alpha & hole, refs[0].index, 0).astype(np.int16)
-        return Fusion(r.image, r.alpha, labels, "single reference")
+        rows, cols = r.render.window()
+        labels[rows, cols][r.alpha[rows, cols] & hole[rows, cols]] = refs[0].index
+        return Fusion(r.image, r.alpha, labels, "single reference", window=(rows, cols))
     fc = cfg.fusion
     # A canonical order (by content) so that the order the references were given in cannot change
     # the result: the graph cut visits pairs of references in list order.
-    refs = sorted(refs, key=lambda r: hashlib.blake2b(r.source.tobytes(), digest_size=16).digest())
+    refs = sorted(
+        refs, key=lambda r: hashlib.blake2b(np.ascontiguousarray(r.source).data, digest_size=16).digest()
+    )  # the buffer itself: tobytes() would copy each source image first
     rows, cols = _window(refs, hole)
     hole_w = hole[rows, cols]
     alphas = np.stack([r.refined.alpha[rows, cols] for r in refs])
     images = np.stack([r.refined.image[rows, cols] for r in refs]).astype(np.float32)
-    ring = _known_ring(hole, config_px(cfg.refine.band_px, hole.shape))[rows, cols]
+    ring = _known_ring(hole_w, config_px(cfg.refine.band_px, hole.shape))
     scores = np.stack(
         [
             reference_score(r, images[k], target[rows, cols], ring, rows, cols, hole.shape, fc)
@@ -114,11 +127,10 @@ def fuse_references(
     else:
         weights = _feathered_weights(best, alphas, covered, config_px(fc.feather_px, hole.shape))
     fused_w = np.rint(np.einsum("khw,khwc->hwc", weights, images)).clip(0, 255).astype(np.uint8)
-    image = np.zeros_like(target)
+    image = np.zeros(target.shape, target.dtype)  # calloc: the pages outside the window stay untouched
     image[rows, cols] = fused_w
     alpha = np.zeros(hole.shape, bool)
     alpha[rows, cols] = covered
-    labels = empty.copy()
     index = np.array([r.index for r in refs], np.int16)
     labels[rows, cols] = np.where(covered & hole_w, index[best], 0)
     supplies = [(best == k) & covered & hole_w for k in range(len(refs))]
@@ -126,7 +138,7 @@ def fuse_references(
         float(scores[k][supplies[k]].mean()) if supplies[k].any() else 0.0
         for k in sorted(range(len(refs)), key=lambda k: index[k])
     )
-    return Fusion(image, alpha, labels, f"{fc.seams} of {len(refs)} references", mean_scores)
+    return Fusion(image, alpha, labels, f"{fc.seams} of {len(refs)} references", mean_scores, (rows, cols))
 
 
 def reference_score(
@@ -158,7 +170,8 @@ def reference_score(
 
 
 def _known_ring(hole: np.ndarray, width_px: float) -> np.ndarray:
-    """Known pixels within ``width_px`` of the hole."""
+    """Known pixels within ``width_px`` of the hole (the same in any window holding the hole: the
+    two-pass chamfer distance to a pixel is reached by a path inside their bounding box)."""
     dist = cv2.distanceTransform((~hole).astype(np.uint8), cv2.DIST_L2, 3)
     return ~hole & (dist <= max(width_px, 1.0))
 
@@ -172,12 +185,28 @@ def _ring_error(
     w = ring.astype(np.float32)
     if not ring.any():
         return np.full(ring.shape, fallback, np.float32)
-    err = np.abs(image - target.astype(np.float32)).mean(axis=-1) * w
+    diff = np.abs(image - target.astype(np.float32))
+    err = (diff[..., 0] + diff[..., 1] + diff[..., 2]) / 3 * w  # = mean(axis=-1), 3.5x faster
     overall = float(err.sum() / w.sum())
     eps = 1e-3
-    num = cv2.GaussianBlur(err, (0, 0), sigma)
-    den = cv2.GaussianBlur(w, (0, 0), sigma)
+    num = gaussian_blur(err, sigma)
+    den = gaussian_blur(w, sigma)
     return (num + eps * overall) / (den + eps)
+
+
+def gaussian_blur(image: np.ndarray, sigma: float) -> np.ndarray:
+    """``cv2.GaussianBlur(image, (0, 0), sigma)`` of a float32 image (same kernel, reflect-101
+    border), equal to it up to float rounding (1e-6 relative).
+
+    GaussianBlur filters directly, at a cost proportional to the kernel's taps; ``cv2.filter2D``
+    convolves in the Fourier domain once a 2-D kernel is large. On a 1253 x 1246 window (a 4K hole's)
+    the ring error's sigma of 48 px (385 taps) took 293 vs 56 ms, 193 taps 84 vs 38 ms; at 129 taps
+    and below on smaller windows the direct filter is as fast or faster, so it stays there."""
+    taps = round(sigma * 8 + 1) | 1  # OpenCV's kernel size for float images
+    if taps < _DFT_BLUR_TAPS:
+        return cv2.GaussianBlur(image, (0, 0), sigma)
+    k = cv2.getGaussianKernel(taps, sigma, cv2.CV_32F)
+    return cv2.filter2D(image, -1, k @ k.T, borderType=cv2.BORDER_REFLECT_101)
 
 
 def _consensus(images: np.ndarray, alphas: np.ndarray, scale: float) -> np.ndarray:
@@ -195,8 +224,10 @@ def _consensus(images: np.ndarray, alphas: np.ndarray, scale: float) -> np.ndarr
 
 
 def _window(refs: Sequence[ReferenceArtifacts], hole: np.ndarray) -> tuple[slice, slice]:
-    """The smallest window holding every reference's render window."""
-    x0, y0, x1, y1 = hole.shape[1], hole.shape[0], 0, 0
+    """The smallest window holding the hole and every reference's render window (the pipeline's
+    render windows hold the hole already)."""
+    rows, cols = mask_window(hole, 0)
+    x0, y0, x1, y1 = cols.start, rows.start, cols.stop, rows.stop
     for r in refs:
         roi = r.refined.render.roi or (0, 0, hole.shape[1], hole.shape[0])
         x0, y0, x1, y1 = min(x0, roi[0]), min(y0, roi[1]), max(x1, roi[2]), max(y1, roi[3])
@@ -220,13 +251,15 @@ def _viewing_angle_deg(
     g = ref.geometry
     K = g.K_target.resized(shape[1], shape[0])
     z = ref.refined.render.depth[rows, cols]
-    ys, xs = np.mgrid[rows, cols].astype(np.float32)
-    X = np.stack([(xs - K.cx) / K.fx, (ys - K.cy) / K.fy, np.ones_like(xs)], axis=-1)
-    X *= np.where(np.isfinite(z), z, 0.0)[..., None]
-    to_source = X - g.T[:3, 3].astype(np.float32)  # the source centre is at t in target coordinates
-    cos = np.sum(X * to_source, axis=-1) / np.maximum(
-        np.linalg.norm(X, axis=-1) * np.linalg.norm(to_source, axis=-1), 1e-12
-    )
+    z = np.where(np.isfinite(z), z, np.float32(0.0))
+    xs = np.arange(shape[1], dtype=np.float32)[cols][None, :]
+    ys = np.arange(shape[0], dtype=np.float32)[rows][:, None]
+    # One array per coordinate: sums over a trailing axis of 3 are slow in NumPy (4x at 4K).
+    X, Y = (xs - K.cx) / K.fx * z, (ys - K.cy) / K.fy * z
+    t = g.T[:3, 3].astype(np.float32)  # the source centre is at t in target coordinates
+    sx, sy, sz = X - t[0], Y - t[1], z - t[2]
+    norms = np.sqrt(X * X + Y * Y + z * z) * np.sqrt(sx * sx + sy * sy + sz * sz)
+    cos = (X * sx + Y * sy + z * sz) / np.maximum(norms, 1e-12)
     return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))).astype(np.float32)
 
 

@@ -18,7 +18,7 @@ into the wrong place (a second fox head, window frames in a wall), a worse failu
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import cv2
@@ -47,21 +47,41 @@ LAMA_WEIGHTS = WeightsSpec(
 _LAMA_CACHE: dict[Path, Callable[[np.ndarray, np.ndarray], np.ndarray]] = {}
 
 
+def mask_window(mask: np.ndarray, margin: int | None) -> tuple[slice, slice]:
+    """Rows and columns of ``mask``'s bounding box grown by ``margin`` px and clipped to the image
+    (the whole image when ``margin`` is None or the mask is empty)."""
+    rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
+    if margin is None or not rows.size:
+        return slice(0, mask.shape[0]), slice(0, mask.shape[1])
+    return (
+        slice(max(int(rows[0]) - margin, 0), min(int(rows[-1]) + margin + 1, mask.shape[0])),
+        slice(max(int(cols[0]) - margin, 0), min(int(cols[-1]) + margin + 1, mask.shape[1])),
+    )
+
+
 @dataclass(frozen=True)
 class Inpainter:
     """A resolved single-image inpainter: ``run(image HxWx3 uint8, region HxW bool)`` returns the
-    image with ``region`` filled; ``description`` says which method and why (for the report)."""
+    image with ``region`` filled; ``description`` says which method and why (for the report).
+    ``context_px``: how far beyond the region's bounding box ``run`` reads (None: anywhere), so a
+    window that wide gives the same fill as the whole image."""
 
     name: str
     description: str
     run: Callable[[np.ndarray, np.ndarray], np.ndarray]
+    context_px: int | None = None
 
     def fill(self, image: np.ndarray, hole: np.ndarray) -> np.ndarray:
         """``image`` (HxWx3 uint8) with ``hole`` (bool) filled from its surroundings, the rest kept."""
+        out = image.copy()
         if not hole.any():
-            return image.copy()
-        out = self.run(image, hole)
-        np.copyto(out, image, where=~hole[..., None])
+            return out
+        # Only the window is handed over and only the hole pasted back: at 4K whole-image copies
+        # and masked writes cost more than Telea itself.
+        rows, cols = mask_window(hole, self.context_px)
+        region = hole[rows, cols]
+        filled = self.run(np.ascontiguousarray(image[rows, cols]), region)
+        np.copyto(out[rows, cols], filled, where=region[..., None])
         return out
 
 
@@ -72,22 +92,12 @@ def resolve_lama_model(
     return resolve_weights(LAMA_WEIGHTS, cfg.lama_model, allow_download=cfg.download, say=say)
 
 
-def _opencv(method: str, radius_px: float) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
+def _opencv(method: str, radius_px: float) -> Inpainter:
     def run(image: np.ndarray, region: np.ndarray) -> np.ndarray:
-        # Only pixels within the radius of the region are ever read: inpaint that window (at 4K,
-        # cv2.inpaint's full-size work buffers would cost seconds).
-        ys, xs = np.nonzero(region)
-        pad = int(np.ceil(radius_px)) + 2
-        y0, y1 = max(int(ys.min()) - pad, 0), min(int(ys.max()) + pad + 1, region.shape[0])
-        x0, x1 = max(int(xs.min()) - pad, 0), min(int(xs.max()) + pad + 1, region.shape[1])
-        out = image.copy()
-        window = np.ascontiguousarray(image[y0:y1, x0:x1])
-        out[y0:y1, x0:x1] = cv2.inpaint(
-            window, region[y0:y1, x0:x1].astype(np.uint8), radius_px, _METHODS[method]
-        )
-        return out
+        return cv2.inpaint(image, region.astype(np.uint8), radius_px, _METHODS[method])
 
-    return run
+    # Fast marching reads known pixels within the radius of the region only.
+    return Inpainter(method, method, run, context_px=int(np.ceil(radius_px)) + 2)
 
 
 #: Context kept around the region's bounding box for PatchMatch, as a fraction of its longer side
@@ -129,14 +139,14 @@ def get_inpainter(cfg: InpaintConfig, say: Callable[[str], None] | None = None) 
     """The inpainter ``cfg`` asks for. ``lama``, or an explicit ``cfg.lama_model``, that cannot be
     used is an :class:`InpaintModelError`; ``auto`` otherwise falls back to Telea and says why."""
     if cfg.method in _METHODS:
-        return Inpainter(cfg.method, cfg.method, _opencv(cfg.method, cfg.radius_px))
+        return _opencv(cfg.method, cfg.radius_px)
     if cfg.method == "patchmatch":
         return Inpainter("patchmatch", "patchmatch", _patchmatch(cfg.patch_radius_px))
     if not available("onnxruntime"):
         if cfg.method == "lama" or cfg.lama_model:
             require("onnxruntime", "LaMa inpainting")
-        return Inpainter(
-            "telea", "telea (auto: LaMa needs onnxruntime, not installed)", _opencv("telea", cfg.radius_px)
+        return replace(
+            _opencv("telea", cfg.radius_px), description="telea (auto: LaMa needs onnxruntime, not installed)"
         )
     weights = resolve_lama_model(cfg, say)
     if isinstance(weights, WeightsUnavailable):
@@ -150,7 +160,7 @@ def get_inpainter(cfg: InpaintConfig, say: Callable[[str], None] | None = None) 
             )
     if cfg.method == "lama" or cfg.lama_model:
         raise InpaintModelError(problem)
-    return Inpainter("telea", f"telea (auto: {problem})", _opencv("telea", cfg.radius_px))
+    return replace(_opencv("telea", cfg.radius_px), description=f"telea (auto: {problem})")
 
 
 def inpaint_single(image: np.ndarray, hole: np.ndarray, cfg: InpaintConfig) -> np.ndarray:

@@ -11,14 +11,15 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from .inpaint import Inpainter
+from .inpaint import Inpainter, mask_window
 
 
 def blend_map(hole: np.ndarray, alpha: np.ndarray, feather_px: float) -> np.ndarray:
     """``M_single`` (HxW float32 in [0, 1]): 0 outside ``hole & alpha``; inside it, the distance to
     the nearest uncovered hole region divided by ``feather_px``, capped at 1. Uncovered specks
     smaller than a ``feather_px`` square (cracks where a mesh edge was cut inside a surface) are
-    inpainted without a ramp: feathering around each of them would blur the render wholesale."""
+    inpainted without a ramp: feathering around each of them would blur the render wholesale.
+    Everything it depends on lies in the hole, so any window holding the hole gives the same map."""
     covered = hole & alpha
     uncovered = hole & ~alpha
     if feather_px <= 0 or not uncovered.any():
@@ -30,7 +31,10 @@ def blend_map(hole: np.ndarray, alpha: np.ndarray, feather_px: float) -> np.ndar
     if not regions.any():
         return covered.astype(np.float32)
     dist = cv2.distanceTransform((~regions).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
-    return np.where(covered, np.clip(dist / float(feather_px), 0.0, 1.0), 0.0).astype(np.float32)
+    np.divide(dist, np.float32(feather_px), out=dist)
+    np.minimum(dist, 1.0, out=dist)
+    dist[~covered] = 0.0
+    return dist
 
 
 def merge_fill(
@@ -43,16 +47,22 @@ def merge_fill(
 ) -> np.ndarray:
     """Composite of ``target`` (HxWx3 uint8), the ``render`` (HxWx3 uint8, valid where ``alpha``)
     and single-image inpainting; without a render the whole hole is inpainted. Pixels outside
-    ``hole`` are the target's, byte for byte."""
-    if render is None or alpha is None:
+    ``hole`` are the target's, byte for byte.
+
+    Only the hole's bounding box grown by what the inpainter reads (:attr:`Inpainter.context_px`)
+    is worked on: at 4K the full-image maps and copies cost more than the inpainting."""
+    if render is None or alpha is None or not hole.any():
         return inpainter.fill(target, hole)
-    m = blend_map(hole, alpha, feather_px)
-    pasted = target.copy()
-    np.copyto(pasted, render, where=(m > 0)[..., None])
-    out = inpainter.fill(pasted, hole & (m < 1.0))
+    out = target.copy()
+    rows, cols = mask_window(hole, inpainter.context_px)
+    hole_w, render_w, view = hole[rows, cols], render[rows, cols], out[rows, cols]
+    m = blend_map(hole_w, alpha[rows, cols], feather_px)
+    pasted = view.copy()
+    np.copyto(pasted, render_w, where=(m > 0)[..., None])
+    filled = inpainter.fill(pasted, hole_w & (m < 1.0))
     ramp = (m > 0) & (m < 1)
     if ramp.any():
         w = m[ramp][:, None]
-        out[ramp] = np.rint(w * render[ramp] + (1.0 - w) * out[ramp]).astype(np.uint8)
-    np.copyto(out, target, where=~hole[..., None])
+        filled[ramp] = np.rint(w * render_w[ramp] + (1.0 - w) * filled[ramp]).astype(np.uint8)
+    np.copyto(view, filled, where=hole_w[..., None])
     return out
