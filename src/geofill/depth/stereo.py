@@ -442,18 +442,15 @@ def plane_sweep(ctx: DepthContext) -> SweepResult:
     # The target at the source's pixel footprint, so that resampling it onto the source grid does
     # not alias when it sees the scene closer up (wide baselines, zoom).
     s_t = min(1.0, 1.0 / target_magnification((hs, ws), K_s, ctx.K_target, T, np.median(pts.depth)))
-    tgt_rgb = _resize_to(ctx.target, s_t)
-    ht, wt = tgt_rgb.shape[:2]
+    tgt = _resize_to(_grey(ctx.target), s_t)
+    ht, wt = tgt.shape
     K_t = ctx.K_target.resized(wt, ht)
     hole = cv2.resize(ctx.hole.astype(np.uint8), (wt, ht), interpolation=cv2.INTER_AREA) > 0
     span = displacement_span((hs, ws), K_s, K_t, T, lo, hi)
     D = plane_count(span, cfg.stereo_max_planes)
-    prior = None
-    if (span > D * PLANE_STEP_PX).any():
-        guide = cv2.resize(to_uint8(ctx.source), (ws, hs), interpolation=cv2.INTER_AREA)
-        prior = sparse_prior(guide, pts, (hs0, ws0))
+    prior = sparse_prior(to_uint8(src_rgb), pts, (hs0, ws0)) if (span > D * PLANE_STEP_PX).any() else None
     hyp = hypotheses(span, prior, lo, hi, D)
-    src, tgt = _grey(src_rgb), _grey(tgt_rgb)
+    src = _grey(src_rgb)
     needed = win = (slice(0, hs), slice(0, ws))
     if cfg.stereo_window_margin_px is not None and hole.any():
         ys, xs = np.nonzero(hole)
@@ -531,5 +528,5 @@ def complete(sweep: SweepResult, ctx: DepthContext) -> np.ndarray:
     hs0, ws0 = ctx.source.shape[:2]
     uv = np.concatenate([np.stack([xs, ys], axis=1), (pts.uv_source + 0.5) * [w / ws0, h / hs0] - 0.5])
     vals = np.concatenate([sweep.inv_depth[ys, xs], 1.0 / pts.depth])
-    guide = cv2.resize(to_uint8(ctx.source), (w, h), interpolation=cv2.INTER_AREA)
+    guide = to_uint8(cv2.resize(ctx.source, (w, h), interpolation=cv2.INTER_AREA))
     return np.clip(interpolate_edge_aware(guide, uv, vals), *sweep.bounds)
