@@ -264,10 +264,6 @@ class DepthConfig:
     stereo_aggregation_radius: Annotated[int, Range(0, 64)] = 8
     #: ``stereo``: pixels under this confidence (0-1) are re-estimated by edge-aware completion.
     stereo_min_confidence: Annotated[float, Range(0, 1)] = 0.5
-    #: ``stereo``: sweep only the source window whose matches can land, at some depth of the
-    #: sweep's range, within this margin (px at a 1280-px long side) of the target hole's bounding
-    #: box; the rest of the source is completed from the triangulated points. None: the whole source.
-    stereo_window_margin_px: Annotated[float, Range(0, 4096)] | None = None
 
 
 @dataclass

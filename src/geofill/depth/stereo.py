@@ -34,7 +34,7 @@ uses the pose itself, so no scale/offset fit is needed (see :class:`StereoDepth`
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -44,7 +44,6 @@ from ..config import DepthConfig
 from ..errors import ReferenceUnusable
 from ..jit import njit_cached
 from ..render import project_source_points, source_pixel_grid
-from ..resolution import config_px
 from . import DepthContext, DepthPrediction
 from .completion import interpolate_edge_aware, to_uint8
 
@@ -400,32 +399,6 @@ def project_source_grid_inv(inv: np.ndarray, K_s: Intrinsics, K_t: Intrinsics, T
         return project_source_points(x, y, 1.0 / inv.astype(np.float64), K_s, K_t, T)
 
 
-def sweep_window(
-    hyp: Hypotheses, K_s: Intrinsics, K_t: Intrinsics, T: np.ndarray, roi: tuple[float, float, float, float]
-) -> tuple[slice, slice]:
-    """Rows and columns (the bounding box) of the source pixels whose match can land in ``roi``
-    (x0, y0, x1, y1; target px) at some hypothesis of ``hyp``. Over a pixel's hypotheses its match
-    runs along a straight segment between the matches at the first and the last one (while the
-    point stays in front of the target camera; a pixel whose range passes behind it is kept)."""
-    h, w = hyp.lo.shape
-    x, y = source_pixel_grid(h, w)
-    ua, va, za = project_source_points(x, y, 1.0 / hyp.lo, K_s, K_t, T)
-    ub, vb, zb = project_source_points(x, y, 1.0 / hyp.at(hyp.count - 1), K_s, K_t, T)
-    x0, y0, x1, y1 = roi
-    with np.errstate(invalid="ignore"):
-        meets = (
-            (np.fmin(ua, ub) <= x1)
-            & (np.fmax(ua, ub) >= x0)
-            & (np.fmin(va, vb) <= y1)
-            & (np.fmax(va, vb) >= y0)
-        )
-        meets |= ~((za > 0) & (zb > 0))
-    rows, cols = np.nonzero(meets.any(axis=1))[0], np.nonzero(meets.any(axis=0))[0]
-    if len(rows) == 0:
-        return slice(0, 0), slice(0, 0)
-    return slice(int(rows[0]), int(rows[-1]) + 1), slice(int(cols[0]), int(cols[-1]) + 1)
-
-
 def plane_sweep(ctx: DepthContext) -> SweepResult:
     """Plane sweep of ``ctx.source`` against ``ctx.target`` with ``ctx.pose`` (see module docstring)."""
     cfg: DepthConfig = ctx.cfg
@@ -451,33 +424,12 @@ def plane_sweep(ctx: DepthContext) -> SweepResult:
     prior = sparse_prior(to_uint8(src_rgb), pts, (hs0, ws0)) if (span > D * PLANE_STEP_PX).any() else None
     hyp = hypotheses(span, prior, lo, hi, D)
     src = _grey(src_rgb)
-    needed = win = (slice(0, hs), slice(0, ws))
-    if cfg.stereo_window_margin_px is not None and hole.any():
-        ys, xs = np.nonzero(hole)
-        m = config_px(cfg.stereo_window_margin_px, hole.shape)
-        needed = sweep_window(hyp, K_s, K_t, T, (xs.min() - m, ys.min() - m, xs.max() + m, ys.max() + m))
-        # The sweep runs on the needed window grown by the reach of the NCC window and of the guided
-        # filter's two box filters, so that every needed pixel scores as in a sweep of the whole source.
-        g = cfg.stereo_patch_px // 2 + 2 * cfg.stereo_aggregation_radius
-        win = tuple(
-            slice(max(a.start - g, 0), min(a.stop + g, n)) for a, n in ((needed[0], hs), (needed[1], ws))
-        )
-    inv = np.full((hs, ws), np.nan, np.float32)
-    s1, conf = np.zeros((hs, ws), np.float32), np.zeros((hs, ws), np.float32)
-    rows, cols = win
-    if rows.stop > rows.start and cols.stop > cols.start:
-        K_w = replace(K_s, cx=K_s.cx - cols.start, cy=K_s.cy - rows.start)
-        K_w = replace(K_w, width=cols.stop - cols.start, height=rows.stop - rows.start)
-        hyp_w = Hypotheses(hyp.lo[win], hyp.step[win], D)
-        src_w = np.ascontiguousarray(src[win])
-        # Invalid windows score 0 (no evidence either way): aggregation neither rewards nor punishes them.
-        ncc, valid = sweep_ncc(src_w, tgt, hole, K_w, K_t, T, hyp_w, cfg.stereo_patch_px)
-        ncc = aggregate(ncc, src_w, cfg.stereo_aggregation_radius)
-        inv_w, s1_w, rival, best = winner_take_all(ncc, hyp_w)
-        conf_w = confidence(s1_w, s1_w - rival)
-        conf_w[~np.take_along_axis(valid, best[None], 0)[0]] = 0.0
-        keep = tuple(slice(a.start - b.start, a.stop - b.start) for a, b in zip(needed, win, strict=True))
-        inv[needed], s1[needed], conf[needed] = inv_w[keep], s1_w[keep], conf_w[keep]
+    # Invalid windows score 0 (no evidence either way): aggregation neither rewards nor punishes them.
+    ncc, valid = sweep_ncc(src, tgt, hole, K_s, K_t, T, hyp, cfg.stereo_patch_px)
+    ncc = aggregate(ncc, src, cfg.stereo_aggregation_radius)
+    inv, s1, rival, best = winner_take_all(ncc, hyp)
+    conf = confidence(s1, s1 - rival)
+    conf[~np.take_along_axis(valid, best[None], 0)[0]] = 0.0
     # Only winners that pass the other tests may hide others: a wrong winner must not veto a right one.
     occl = occluded_in_target(np.where(conf >= cfg.stereo_min_confidence, inv, np.nan), K_s, K_t, T, (ht, wt))
     conf[occl] = 0.0
