@@ -164,10 +164,13 @@ _NO_EVIDENCE = np.float32(1e30)
 
 
 # The kernels below run on flattened images (channels last where there are 4): numba vectorises
-# the flat loops, not the 2-D ones (measured 2-3x).
+# the flat loops, not the 2-D ones (measured 2-3x). NumPy's error model drops the division-by-zero
+# checks that otherwise keep the loops scalar (the map kernel: 4x); the fast-maths flags leave out
+# "no NaN / no inf", as a point on the target camera's plane divides by zero.
+_FAST = {"nsz", "arcp", "contract", "afn", "reassoc"}
 
 
-@njit_cached(fastmath=True, error_model="numpy")
+@njit_cached(nogil=True, fastmath=_FAST, error_model="numpy")
 def _plane_maps(rays, t, k_t, lo, step, i, mu, mv):  # pragma: no cover - compiled
     """Remap maps (target px) of every source pixel at inverse depth ``lo + i * step``; -1 where the
     point is behind the target camera or projects outside the target. Hand-written because the
@@ -185,7 +188,7 @@ def _plane_maps(rays, t, k_t, lo, step, i, mu, mv):  # pragma: no cover - compil
         mv[j] = v if inside else np.float32(-1)
 
 
-@njit_cached(fastmath=True, error_model="numpy")
+@njit_cached(nogil=True, fastmath=_FAST, error_model="numpy")
 def _window_moments(warped, src, out):  # pragma: no cover - compiled
     """Per pixel (warped, warped^2, src * warped, valid) into ``out`` (4 per pixel), warped zeroed
     where it holds no evidence: what one 4-channel box filter turns into window moments."""
@@ -199,7 +202,7 @@ def _window_moments(warped, src, out):  # pragma: no cover - compiled
         out[4 * j + 3] = np.float32(1) if ok else np.float32(0)
 
 
-@njit_cached(fastmath=True, error_model="numpy")
+@njit_cached(nogil=True, fastmath=_FAST, error_model="numpy")
 def _ncc(m, mu_s, var_s, ncc, valid):  # pragma: no cover - compiled
     """NCC and validity of every window from its moments ``m`` (:func:`_window_moments` boxed);
     invalid windows score 0 (no evidence either way)."""
@@ -258,7 +261,7 @@ def sweep_ncc(
     return ncc, valid
 
 
-@njit_cached(fastmath=True, error_model="numpy")
+@njit_cached(nogil=True, fastmath=_FAST, error_model="numpy")
 def _gf_inputs(c0, c1, guide, out):  # pragma: no cover - compiled
     """(p, I p) of two cost slices into ``out`` (4 per pixel) for one 4-channel box filter."""
     for j in range(guide.size):
@@ -268,7 +271,7 @@ def _gf_inputs(c0, c1, guide, out):  # pragma: no cover - compiled
         out[4 * j + 3] = guide[j] * c1[j]
 
 
-@njit_cached(fastmath=True, error_model="numpy")
+@njit_cached(nogil=True, fastmath=_FAST, error_model="numpy")
 def _gf_coefficients(m, mean_g, inv_denom, out):  # pragma: no cover - compiled
     """The guided filter's local linear models (a, b) of two slices from their box means ``m``."""
     for j in range(mean_g.size):
@@ -280,7 +283,7 @@ def _gf_coefficients(m, mean_g, inv_denom, out):  # pragma: no cover - compiled
         out[4 * j + 3] = m[4 * j + 2] - a1 * mean_g[j]
 
 
-@njit_cached(fastmath=True, error_model="numpy")
+@njit_cached(nogil=True, fastmath=_FAST, error_model="numpy")
 def _gf_outputs(m, guide, c0, c1):  # pragma: no cover - compiled
     """Filtered slices from the box means ``m`` of their local models: mean(a) I + mean(b)."""
     for j in range(guide.size):
@@ -314,7 +317,7 @@ def aggregate(cost: np.ndarray, guide: np.ndarray, radius: int) -> np.ndarray:
     return cost
 
 
-@njit_cached(error_model="numpy")
+@njit_cached(nogil=True, error_model="numpy")
 def _winner_take_all(score, lo, step, peak_half_width, inv, best_score, rival, best):  # pragma: no cover
     """:func:`winner_take_all` on ``score`` (D, n) into (n,) arrays. Hand-written because the NumPy
     version made six passes over the whole volume (argmax, gathers, a peak mask, a masked max)
