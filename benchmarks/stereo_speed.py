@@ -2,8 +2,11 @@
 
 Inputs: a synthetic scene rendered at 1280x720 and the real pairs of about that size; the pipeline
 runs up to the triangulated points once, then the backend alone is timed (median of ``--repeat``
-runs, after one warm-up that compiles/caches), split into the sweep (cost volume, aggregation,
-winner-take-all, confidence) and the completion. Timings on a shared machine are provisional.
+runs, after one warm-up), split into the sweep (cost volume, aggregation, winner-take-all,
+confidence) and the completion, with the backend's CPU time beside its wall time (the CPU time of
+the process, OpenCV's worker threads included: steadier than wall time on a shared machine). The
+first backend call of the process is timed apart: it loads the compiled kernels from numba's
+cache (or compiles them, on a cold cache). Timings on a shared machine are provisional.
 
     .venv/bin/python benchmarks/stereo_speed.py [--repeat 3]
 """
@@ -39,14 +42,16 @@ def context(target: np.ndarray, hole: np.ndarray, source: np.ndarray, cfg: FillC
     )
 
 
-def timed(fn, repeat: int) -> tuple[float, object]:
+def timed(fn, repeat: int) -> tuple[float, float, object]:
+    """Median wall and CPU seconds of ``fn`` over ``repeat`` runs after a warm-up, and its output."""
     out = fn()  # warm-up
-    times = []
+    wall, cpu = [], []
     for _ in range(repeat):
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         out = fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times), out
+        wall.append(time.perf_counter() - t0)
+        cpu.append(time.process_time() - c0)
+    return statistics.median(wall), statistics.median(cpu), out
 
 
 def main() -> int:
@@ -65,17 +70,18 @@ def main() -> int:
                     (pair.id, np.where(hole[..., None], 0, pair.target).astype(np.uint8), hole, pair.source)
                 )
     cols = ("size", 10), ("sweep px", 9), ("planes", 6), ("sweep", 7), ("complete", 8), ("backend", 8)
+    cols += (("cpu", 7),)
     print(f"{'input':<34s} " + " ".join(f"{c:>{n}s}" for c, n in cols))
     for name, target, hole, source in cases:
         ctx = context(target, hole, source, cfg)
-        t_sweep, sweep = timed(lambda ctx=ctx: plane_sweep(ctx), args.repeat)
-        t_comp, _ = timed(lambda ctx=ctx, sweep=sweep: complete(sweep, ctx), args.repeat)
-        t_all, _ = timed(lambda ctx=ctx: StereoDepth().predict(ctx), args.repeat)
+        t_sweep, _, sweep = timed(lambda ctx=ctx: plane_sweep(ctx), args.repeat)
+        t_comp, _, _ = timed(lambda ctx=ctx, sweep=sweep: complete(sweep, ctx), args.repeat)
+        t_all, c_all, _ = timed(lambda ctx=ctx: StereoDepth().predict(ctx), args.repeat)
         h, w = ctx.source.shape[:2]
         hs, ws = sweep.inv_depth.shape
         print(
             f"{name:<34s} {f'{w}x{h}':>10s} {f'{ws}x{hs}':>9s} {sweep.hyp.count:6d} "
-            f"{t_sweep:6.2f}s {t_comp:7.2f}s {t_all:7.2f}s",
+            f"{t_sweep:6.3f}s {t_comp:7.3f}s {t_all:7.3f}s {c_all:6.3f}s",
             flush=True,
         )
     print(f"(median of {args.repeat} after a warm-up; {cv2.getNumThreads()} OpenCV threads; shared machine)")
