@@ -238,13 +238,14 @@ def search_focal(
     # Refine the data-only minimum between the grid neighbours of the best grid point; every
     # evaluation joins the profile used for the uncertainty below.
     i = int(np.argmin(cost))
-    seen = dict(zip(np.log(grid), cost, strict=True))
+    log_grid = np.log(grid)
+    seen = dict(zip(log_grid, cost, strict=True))
+    fitted = dict(zip(log_grid, poses, strict=True))
 
     def data_cost(log_s: float) -> float:
-        seen[log_s] = fit.fit(float(np.exp(log_s)), *poses[i])[0]
+        seen[log_s] = fit.fit_from_nearest(log_s, fitted)
         return seen[log_s]
 
-    log_grid = np.log(grid)
     lo, hi = log_grid[max(i - 1, 0)], log_grid[min(i + 1, n - 1)]
     best_x, best_cost = minimize_bounded(data_cost, lo, hi, xatol=3e-3)
     log_d = float(best_x) if best_cost < cost[i] else float(log_grid[i])
@@ -331,21 +332,24 @@ def shared_focal_scale(
         fit = _EpipolarFit(m, K_t, K_s, (True, True), thr, cfg.search_max_matches)
         cost, _, _, poses = _grid_profile(fit, grid, m.F)
         c_min = max(float(cost.min()), 1e-12)
-        fits.append((fit, poses, c_min, len(fit.d_t) / (cfg.search_variance_inflation * c_min)))
+        fitted = dict(zip(np.log(grid), poses, strict=True))
+        fits.append((fit, fitted, c_min, len(fit.d_t) / (cfg.search_variance_inflation * c_min)))
         profiles.append(cost)
     log_grid = np.log(grid)
 
-    def nll(log_s: float, i: int) -> float:
-        s = float(np.exp(log_s))
-        return sum(0.5 * (fit.fit(s, *poses[i])[0] - c_min) * temper for fit, poses, c_min, temper in fits)
+    def nll(log_s: float) -> float:
+        return sum(
+            0.5 * (fit.fit_from_nearest(log_s, fitted) - c_min) * temper
+            for fit, fitted, c_min, temper in fits
+        )
 
     grid_nll = sum(0.5 * (c - f[2]) * f[3] for c, f in zip(profiles, fits, strict=True))
     i = int(np.argmin(grid_nll))
     lo, hi = log_grid[max(i - 1, 0)], log_grid[min(i + 1, len(grid) - 1)]
-    best_x, best_nll = minimize_bounded(lambda x: nll(x, i), lo, hi, xatol=3e-3)
+    best_x, best_nll = minimize_bounded(nll, lo, hi, xatol=3e-3)
     log_d = float(best_x) if best_nll < grid_nll[i] else float(log_grid[i])
     h = _CURVATURE_STEP
-    curv = (nll(log_d + h, i) + nll(log_d - h, i) - 2.0 * nll(log_d, i)) / h**2
+    curv = (nll(log_d + h) + nll(log_d - h) - 2.0 * nll(log_d)) / h**2
     sd_data = float(np.hypot(1.0 / np.sqrt(curv) if curv > 0 else np.inf, cfg.model_error))
     precision = 1.0 / sd_data**2 + 1.0 / sigma**2
     log_s, sd = float(log_d / sd_data**2 / precision), float(1.0 / np.sqrt(precision))
@@ -515,6 +519,8 @@ class _EpipolarFit:
         self.K_t, self.K_s, self.free, self.thr = K_t, K_s, free, thr
         # Homogeneous points as (3, N) rows: every product below runs along contiguous rows.
         self._p_t = np.vstack([self.d_t.T, np.ones(len(idx))])
+        self._normalised_at: tuple[float, ...] = ()
+        self._normalised: tuple[np.ndarray, np.ndarray] = (self._p_t, self._p_t)
 
     def focals(self, scale: float) -> tuple[np.ndarray, np.ndarray]:
         st = scale if self.free[0] else 1.0
@@ -526,8 +532,14 @@ class _EpipolarFit:
         normalised coordinates, and their (N, k - 1) Jacobian for the derivatives ``Ms[1:]`` of E
         ((k, 3, 3) in all)."""
         k, n = Ms.shape[0], self._p_t.shape[1]
-        n_s = np.vstack([self.d_s.T / f_s[:, None], np.ones(n)])
-        n_t = np.vstack([self.d_t.T / f_t[:, None], np.ones(n)])
+        key = (*f_t, *f_s)
+        if key != self._normalised_at:  # a fit evaluates one pair of focal lengths many times
+            self._normalised_at = key
+            self._normalised = (
+                np.vstack([self.d_s.T / f_s[:, None], np.ones(n)]),
+                np.vstack([self.d_t.T / f_t[:, None], np.ones(n)]),
+            )
+        n_s, n_t = self._normalised
         # With the first two rows of each matrix divided by f_t, (M n_s)[:2] is the image gradient
         # of x_t^T F x_s in the target and p_t . (M n_s) (p_t in pixels) is n_t^T M n_s; the
         # columns divided by f_s give the gradient in the source. One matrix product each.
@@ -551,6 +563,15 @@ class _EpipolarFit:
         R, _, t = cv2.decomposeEssentialMat(Kt.T @ F @ Ks)
         return R, t.ravel()
 
+    def fit_from_nearest(self, log_scale: float, poses: dict[float, tuple[np.ndarray, np.ndarray]]) -> float:
+        """Robust cost of the best fit at scale exp(``log_scale``), started from the pose fitted at
+        the nearest log scale in ``poses``, which the new pose joins: a continuation, so each fit
+        starts close to its answer (from the best grid scale's pose, a fit 0.05 away in log
+        scale took ~40 % more evaluations)."""
+        near = min(poses, key=lambda s: abs(s - log_scale))
+        cost, _, poses[log_scale] = self.fit(float(np.exp(log_scale)), *poses[near])
+        return cost
+
     def fit(self, scale: float, R0: np.ndarray, t0: np.ndarray):
         """(robust cost, residuals, (R, t)) of the best essential matrix at ``scale``, from (R0, t0).
 
@@ -570,11 +591,13 @@ class _EpipolarFit:
         def fun_jac(x):
             R, t, norm = pose(x)
             tx = _skew(t)
-            # d exp([w]) / dw_k = [J_l(w) e_k]x exp([w]), J_l the left Jacobian of SO(3).
-            J = _left_jacobian(x[:3])
-            d_rot = [tx @ _skew(J[:, k]) @ R for k in range(3)]
-            d_tr = [_skew((d - t * (t @ d)) / norm) @ R for d in (u, v)]
-            return self.residuals(np.array([tx @ R, *d_rot, *d_tr]), f_t, f_s)
+            # d exp([w]) / dw_k = [J_l(w) e_k]x exp([w]), J_l the left Jacobian of SO(3), so
+            # dE/dw_k = [t]x [J_l e_k]x R; dE/dx_3,4 = [dt]x R, dt the move of the normalised t.
+            uv = np.array([u, v])
+            directions = np.vstack([_left_jacobian(x[:3]).T, (uv - np.outer(uv @ t, t)) / norm])
+            dE = np.tensordot(directions, _GENERATORS, 1)
+            dE[:3] = tx @ dE[:3]
+            return self.residuals(np.concatenate([(tx @ R)[None], dE @ R]), f_t, f_s)
 
         x, cost, res = robust_least_squares(fun_jac, np.zeros(5), "soft_l1", self.thr)
         R, t, _ = pose(x)
@@ -583,6 +606,10 @@ class _EpipolarFit:
 
 def _skew(v: np.ndarray) -> np.ndarray:
     return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+#: [v]x = sum_k v_k _GENERATORS[k]: the skew matrices of many vectors in one tensor product.
+_GENERATORS = np.array([_skew(e) for e in np.eye(3)])
 
 
 def _left_jacobian(w: np.ndarray) -> np.ndarray:

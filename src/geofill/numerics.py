@@ -144,17 +144,17 @@ def robust_least_squares(
     x0: np.ndarray,
     loss: str,
     f_scale: float,
-    ftol: float = 1e-10,
-    xtol: float = 1e-10,
+    ftol: float = 1e-8,
+    xtol: float = 1e-8,
     max_evaluations: int | None = None,
 ) -> tuple[np.ndarray, float, np.ndarray]:
     """The local minimum of ``0.5 f^2 sum(rho((r(x) / f)^2))`` that SciPy's ``least_squares(fun,
     x0, jac, loss=loss, f_scale=f_scale)`` (method "trf" without bounds) finds: the same
     trust-region Gauss-Newton iteration (robust curvature J^T diag(rho' + 2 rho'' z) J, the
     trust-region subproblem solved exactly, the same radius updates starting from 1 for x0 = 0,
-    and its termination tests), for a few parameters. ``fun_jac(x)`` returns the residuals (m,)
-    and their Jacobian (m, n), evaluated together (the Jacobian of a rejected step, which is
-    rare, is wasted). Returns (x, cost, residuals at x)."""
+    and its termination tests with SciPy's tolerances), for a few parameters. ``fun_jac(x)``
+    returns the residuals (m,) and their Jacobian (m, n), evaluated together (the Jacobian of a
+    rejected step, which is rare, is wasted). Returns (x, cost, residuals at x)."""
     x = np.asarray(x0, np.float64).copy()
     n = x.size
     max_evaluations = 100 * n if max_evaluations is None else max_evaluations
