@@ -500,9 +500,9 @@ def _bougnoux_log_scale(
 
 
 class _EpipolarFit:
-    """Best essential matrix for given focal scales: robust Gauss-Newton (Levenberg-Marquardt,
-    soft-L1 loss) on the Sampson errors in pixels, over R (rotation vector update) and the unit
-    translation (two tangent coordinates)."""
+    """Best essential matrix for given focal scales: robust trust-region Gauss-Newton (soft-L1
+    loss, :func:`geofill.numerics.robust_least_squares`) on the Sampson errors in pixels, over R
+    (rotation vector update) and the unit translation (two tangent coordinates)."""
 
     def __init__(
         self,
@@ -566,8 +566,8 @@ class _EpipolarFit:
     def fit_from_nearest(self, log_scale: float, poses: dict[float, tuple[np.ndarray, np.ndarray]]) -> float:
         """Robust cost of the best fit at scale exp(``log_scale``), started from the pose fitted at
         the nearest log scale in ``poses``, which the new pose joins: a continuation, so each fit
-        starts close to its answer (from the best grid scale's pose, a fit 0.05 away in log
-        scale took ~40 % more evaluations)."""
+        starts close to its answer (the refinement's fits, all started from the best grid
+        scale's pose, took 9.2 evaluations each instead of 6.4 on the real pairs)."""
         near = min(poses, key=lambda s: abs(s - log_scale))
         cost, _, poses[log_scale] = self.fit(float(np.exp(log_scale)), *poses[near])
         return cost

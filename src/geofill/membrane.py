@@ -75,8 +75,16 @@ def membrane_fill(
 
 
 def _neighbour_sum(a: np.ndarray) -> np.ndarray:
-    """Sum of the 4 neighbours of every pixel (zero beyond the image)."""
-    return cv2.filter2D(a, -1, _CROSS, borderType=cv2.BORDER_CONSTANT).reshape(a.shape)
+    """Sum of the 4 neighbours of every pixel of an (h, w) array (zero beyond the image)."""
+    return cv2.filter2D(a, -1, _CROSS, borderType=cv2.BORDER_CONSTANT)
+
+
+def _stacked_neighbour_sum(x: np.ndarray) -> np.ndarray:
+    """:func:`_neighbour_sum` of each channel of a channel-first (C, h, w) array, as one filter of
+    the channels stacked vertically: right wherever the first and last rows are not needed
+    (solver vectors are zero there: :func:`_pcg` pads its box with a row on either side)."""
+    c, h, w = x.shape
+    return _neighbour_sum(x.reshape(c * h, w)).reshape(c, h, w)
 
 
 def _solve(field: np.ndarray, known: np.ndarray, unknown: np.ndarray, fallback: np.ndarray) -> np.ndarray:
@@ -102,8 +110,9 @@ class _Level:
     """A symmetric 5-point operator on the ``unknown`` pixels of a grid: ``(A x)_p = diag_p x_p -
     sum over the 4 neighbours q of w_pq x_q``, with ``east`` / ``south`` the weights to the next
     pixel in x / y (zero unless both are unknown). Without weights they are 1 between unknowns (the
-    finest grid, applied with one OpenCV filter). Vectors are (h, w, C) float32, zero off the
-    unknowns."""
+    finest grid, applied with one OpenCV filter). Vectors are channel-first (C, h, w) float32
+    arrays, zero off the unknowns: NumPy's products and per-channel sums over (h, w, C) arrays with
+    a short last axis took 2-5x as long."""
 
     def __init__(
         self,
@@ -113,26 +122,24 @@ class _Level:
         south: np.ndarray | None = None,
     ) -> None:
         self.unknown, self.diag, self.east, self.south = unknown, diag, east, south
-        self.mask = unknown[..., None].astype(np.float32)
-        self.diag_c = diag[..., None].astype(np.float32)
-        self.inv_diag = np.where(unknown, 1.0 / np.where(unknown, diag, 1.0), 0.0)[..., None].astype(
-            np.float32
-        )
+        self.mask = unknown.astype(np.float32)
+        self.diag32 = diag.astype(np.float32)
+        self.inv_diag = np.where(unknown, 1.0 / np.where(unknown, diag, 1.0), 0.0).astype(np.float32)
         if east is not None:
-            self.w_e, self.w_s = east[..., None].astype(np.float32), south[..., None].astype(np.float32)
+            self.w_e, self.w_s = east.astype(np.float32), south.astype(np.float32)
             self.w_w, self.w_n = np.zeros_like(self.w_e), np.zeros_like(self.w_s)
             self.w_w[:, 1:], self.w_n[1:] = self.w_e[:, :-1], self.w_s[:-1]
 
     def apply(self, x: np.ndarray) -> np.ndarray:
         if self.east is None:
-            return (self.diag_c * x - _neighbour_sum(x)) * self.mask
-        xp = np.pad(x, ((1, 1), (1, 1), (0, 0)))
+            return (self.diag32 * x - _stacked_neighbour_sum(x)) * self.mask
+        xp = np.pad(x, ((0, 0), (1, 1), (1, 1)))
         return (
-            self.diag_c * x
-            - self.w_e * xp[1:-1, 2:]
-            - self.w_w * xp[1:-1, :-2]
-            - self.w_s * xp[2:, 1:-1]
-            - self.w_n * xp[:-2, 1:-1]
+            self.diag32 * x
+            - self.w_e * xp[:, 1:-1, 2:]
+            - self.w_w * xp[:, 1:-1, :-2]
+            - self.w_s * xp[:, 2:, 1:-1]
+            - self.w_n * xp[:, :-2, 1:-1]
         )
 
     def coarser(self) -> _Level:
@@ -155,12 +162,13 @@ class _Level:
 
 
 def _pad_even(a: np.ndarray) -> np.ndarray:
-    return np.pad(a, [(0, a.shape[0] % 2), (0, a.shape[1] % 2)] + [(0, 0)] * (a.ndim - 2))
+    """``a`` padded with zeros to even sizes of its last two axes."""
+    return np.pad(a, [(0, 0)] * (a.ndim - 2) + [(0, a.shape[-2] % 2), (0, a.shape[-1] % 2)])
 
 
 def _block_sum(a: np.ndarray) -> np.ndarray:
-    """Sums of 2x2 blocks (an even-sized array)."""
-    return a[0::2, 0::2] + a[1::2, 0::2] + a[0::2, 1::2] + a[1::2, 1::2]
+    """Sums of the 2x2 blocks of the last two axes (even sizes)."""
+    return a[..., 0::2, 0::2] + a[..., 1::2, 0::2] + a[..., 0::2, 1::2] + a[..., 1::2, 1::2]
 
 
 def _hierarchy(finest: _Level) -> tuple[list[_Level], np.ndarray]:
@@ -189,49 +197,54 @@ def _v_cycle(levels: list[_Level], coarsest_inverse: np.ndarray, b: np.ndarray, 
     if k == len(levels) - 1:
         ys, xs = np.nonzero(level.unknown)
         x = np.zeros_like(b)
-        x[ys, xs] = coarsest_inverse @ b[ys, xs]
+        x[:, ys, xs] = b[:, ys, xs] @ coarsest_inverse  # the inverse is symmetric
         return x
     x = _JACOBI_WEIGHT * level.inv_diag * b
     coarse = _v_cycle(levels, coarsest_inverse, _block_sum(_pad_even(b - level.apply(x))), k + 1)
-    h, w = coarse.shape[:2]
-    up = cv2.resize(coarse, (2 * w, 2 * h), interpolation=cv2.INTER_NEAREST).reshape(2 * h, 2 * w, -1)
-    x += _COARSE_WEIGHT * up[: b.shape[0], : b.shape[1]] * level.mask
+    c, h, w = coarse.shape
+    # Piecewise-constant prolongation: 2x nearest-neighbour upsampling of the stacked channels.
+    up = cv2.resize(coarse.reshape(c * h, w), (2 * w, 2 * c * h), interpolation=cv2.INTER_NEAREST)
+    x += _COARSE_WEIGHT * up.reshape(c, 2 * h, 2 * w)[:, : b.shape[1], : b.shape[2]] * level.mask
     return x + _JACOBI_WEIGHT * level.inv_diag * (b - level.apply(x))
 
 
 def _pcg(field: np.ndarray, known: np.ndarray, unknown: np.ndarray, fallback: np.ndarray) -> np.ndarray:
     """The Laplace solve of :func:`_solve` for unknowns that all reach a known pixel: conjugate
     gradients (float64, one per channel) preconditioned by a V-cycle (float32)."""
-    u = unknown.astype(np.float64)[..., None]
+    # One row of neither known nor unknown pixels above and below (a free edge, like the image's):
+    # channel-first vectors are then zero on each channel's first and last rows.
+    unknown, known = np.pad(unknown, ((1, 1), (0, 0))), np.pad(known, ((1, 1), (0, 0)))
+    values = np.pad(np.where(known[1:-1, :, None], field, 0.0), ((1, 1), (0, 0), (0, 0)))
+    u = unknown.astype(np.float64)
     diag = np.where(unknown, _neighbour_sum((unknown | known).astype(np.float32)) + _TIKHONOV, 0.0)
     levels, coarsest_inverse = _hierarchy(_Level(unknown, diag))
-    d = diag[..., None]
-    b = (_neighbour_sum(np.where(known[..., None], field, 0.0).astype(np.float64)) + _TIKHONOV * fallback) * u
-    b_norm = np.sqrt(np.einsum("ijk,ijk->k", b, b))
+    fb = np.asarray(fallback, np.float64)[:, None, None]
+    b = (_stacked_neighbour_sum(values.transpose(2, 0, 1).astype(np.float64)) + _TIKHONOV * fb) * u
+    b_norm = np.sqrt(np.einsum("kij,kij->k", b, b))
     b_norm[b_norm == 0] = 1.0
 
     def precondition(r: np.ndarray) -> np.ndarray:
         return _v_cycle(levels, coarsest_inverse, r.astype(np.float32)).astype(np.float64)
 
     def ratio(num: np.ndarray, den: np.ndarray) -> np.ndarray:
-        return np.divide(num, den, out=np.zeros_like(num), where=den != 0)
+        return np.divide(num, den, out=np.zeros_like(num), where=den != 0)[:, None, None]
 
     x, r = np.zeros_like(b), b.copy()
     z = precondition(r)
     p = z
-    rz = np.einsum("ijk,ijk->k", r, z)
+    rz = np.einsum("kij,kij->k", r, z)
     for _ in range(_MAX_ITERATIONS):
-        Ap = (d * p - _neighbour_sum(p)) * u
-        alpha = ratio(rz, np.einsum("ijk,ijk->k", p, Ap))
+        Ap = (diag * p - _stacked_neighbour_sum(p)) * u
+        alpha = ratio(rz, np.einsum("kij,kij->k", p, Ap))
         x += alpha * p
         r -= alpha * Ap
-        if np.all(np.sqrt(np.einsum("ijk,ijk->k", r, r)) <= _TOLERANCE * b_norm):
+        if np.all(np.sqrt(np.einsum("kij,kij->k", r, r)) <= _TOLERANCE * b_norm):
             break
         z = precondition(r)
-        rz_new = np.einsum("ijk,ijk->k", r, z)
+        rz_new = np.einsum("kij,kij->k", r, z)
         p = z + ratio(rz_new, rz) * p
         rz = rz_new
-    return x.astype(np.float32)
+    return x[:, 1:-1].transpose(1, 2, 0).astype(np.float32)
 
 
 def _solve_coarse(
