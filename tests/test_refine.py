@@ -129,6 +129,10 @@ def test_membrane_solve_matches_a_sparse_direct_solve():
     ref = _sparse_lu_solve(field, known, unknown, fallback)
     assert np.abs(ours - ref)[unknown].max() < 1e-4 * np.ptp(ref[unknown & ~cut_off])
     assert np.allclose(ours[cut_off], fallback, atol=1e-6)
+    # Few unknowns: the finest grid is the coarsest, solved directly.
+    small = (xx - 60) ** 2 + (yy - 70) ** 2 < 5**2
+    ours, ref = _solve(field, ~small, small, fallback), _sparse_lu_solve(field, ~small, small, fallback)
+    assert np.abs(ours - ref)[small].max() < 1e-5
 
 
 # --- colour models --------------------------------------------------------------------------------

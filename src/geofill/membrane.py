@@ -142,16 +142,22 @@ class _Level:
             - self.w_n * xp[:, :-2, 1:-1]
         )
 
+    def weights(self) -> tuple[np.ndarray, np.ndarray]:
+        """(east, south) edge weights, also where they are implicit (1 between unknowns)."""
+        if self.east is not None:
+            return self.east, self.south
+        u = self.unknown.astype(np.float32)
+        east, south = np.zeros_like(u), np.zeros_like(u)
+        east[:, :-1], south[:-1] = u[:, :-1] * u[:, 1:], u[:-1] * u[1:]
+        return east, south
+
     def coarser(self) -> _Level:
         """The Galerkin operator P^T A P of 2x2 aggregates (P: piecewise constant): a coarse
         pixel's diagonal is its block's diagonals less twice the weights inside the block, its
         weight to a neighbour the sum of the fine weights crossing between the blocks."""
-        u = self.unknown.astype(np.float32)
-        east, south = self.east, self.south
-        if east is None:
-            east, south = np.zeros_like(u), np.zeros_like(u)
-            east[:, :-1], south[:-1] = u[:, :-1] * u[:, 1:], u[:-1] * u[1:]
-        u, diag, east, south = (_pad_even(a) for a in (u, self.diag, east, south))
+        u, diag, east, south = (
+            _pad_even(a) for a in (self.unknown.astype(np.float32), self.diag, *self.weights())
+        )
         inner = east[0::2, 0::2] + east[1::2, 0::2] + south[0::2, 0::2] + south[0::2, 1::2]
         return _Level(
             _block_sum(u) > 0,
@@ -182,7 +188,7 @@ def _hierarchy(finest: _Level) -> tuple[list[_Level], np.ndarray]:
     index = np.full(last.unknown.shape, -1)
     index[ys, xs] = np.arange(ys.size)
     A = np.diag(last.diag[ys, xs].astype(np.float64))
-    for weights, dy, dx in ((last.east, 0, 1), (last.south, 1, 0)):
+    for weights, (dy, dx) in zip(last.weights(), ((0, 1), (1, 0)), strict=True):
         ok = (ys + dy < index.shape[0]) & (xs + dx < index.shape[1])
         i, j = np.flatnonzero(ok), index[ys[ok] + dy, xs[ok] + dx]
         i, j, wt = i[j >= 0], j[j >= 0], weights[ys[ok], xs[ok]][j >= 0]
