@@ -1,8 +1,9 @@
 """Small numerical routines written out instead of imported from SciPy.
 
-Importing ``scipy.optimize`` (or ``scipy.sparse.linalg``) costs ~0.2-0.3 s of every fill (``python
--X importtime``; a whole 1280x720 fill aims at 2 s), and a fill needs only these pieces of it. Each
-routine reproduces SciPy's answer to the problem it solves; ``tests/test_numerics.py`` compares them.
+Importing ``scipy.optimize``, ``scipy.sparse.linalg`` and ``scipy.spatial`` took ~0.13 s of every
+fill (``python -X importtime``, on top of the ``scipy.linalg`` that numba imports anyway; a whole
+1280x720 fill aims at 2 s), and a fill needs only these pieces of them. Each routine reproduces
+SciPy's answer to the problem it solves; ``tests/test_numerics.py`` compares them.
 
 * :func:`robust_linear_fit`: ``least_squares`` with a robust loss and box bounds for a residual
   linear in the parameters (the colour gain/offset fits of refinement, the depth scale/offset fit);
