@@ -15,7 +15,7 @@ from geofill.errors import InpaintModelError
 from geofill.evaluation.metrics import psnr
 from geofill.inpaint import LAMA_WEIGHTS, Inpainter, get_inpainter, inpaint_single
 from geofill.lama import crop_window
-from geofill.membrane import membrane_fill
+from geofill.membrane import _solve, membrane_fill
 from geofill.merge import blend_map, merge_fill
 from geofill.pipeline import fill
 from geofill.refine import (
@@ -70,6 +70,69 @@ def test_membrane_fill_domain_and_unreachable_regions():
     assert np.allclose(out[:, 40:], -7.0, atol=1e-3)  # no known pixel in reach: fallback
     assert np.array_equal(out[:, 30:40], np.zeros((40, 10)))  # outside the domain: untouched
     assert values.shape == out.shape
+
+
+def _sparse_lu_solve(field, known, unknown, fallback, tikhonov=1e-9):
+    """The masked Laplace system solved with SciPy's SuperLU (what membrane.py did before its
+    multigrid-preconditioned CG): a reference."""
+    import scipy.sparse as sp
+    import scipy.sparse.linalg as spla
+
+    h, w, c = field.shape
+    idx = np.full((h + 2, w + 2), -1)
+    ys, xs = np.nonzero(unknown)
+    n = ys.size
+    idx[ys + 1, xs + 1] = np.arange(n)
+    kn = np.zeros((h + 2, w + 2), bool)
+    kn[1:-1, 1:-1] = known
+    padded = np.zeros((h + 2, w + 2, c))
+    padded[1:-1, 1:-1] = field
+    degree, rhs = np.full(n, tikhonov), np.tile(tikhonov * fallback, (n, 1))
+    rows, cols = [], []
+    for dy, dx in ((0, 1), (0, -1), (1, 0), (-1, 0)):
+        ny, nx = ys + 1 + dy, xs + 1 + dx
+        nb = idx[ny, nx]
+        degree += (nb >= 0) | kn[ny, nx]
+        rows.append(np.flatnonzero(nb >= 0))
+        cols.append(nb[nb >= 0])
+        rhs[kn[ny, nx]] += padded[ny[kn[ny, nx]], nx[kn[ny, nx]]]
+    r, cc = np.concatenate(rows), np.concatenate(cols)
+    A = sp.csc_matrix(
+        (np.concatenate([degree, -np.ones(r.size)]), (np.r_[np.arange(n), r], np.r_[np.arange(n), cc])),
+        (n, n),
+    )
+    out = np.zeros_like(field)
+    out[ys, xs] = spla.splu(A).solve(rhs)
+    return out
+
+
+def test_membrane_solve_matches_a_sparse_direct_solve():
+    # Irregular unknowns on a 3-channel field: blobs touching the image edge, a thin corridor, an
+    # island of known pixels inside a hole, a region cut off from every known pixel, and holes in
+    # the domain (pixels neither known nor unknown: free edges).
+    rng = np.random.default_rng(0)
+    h, w = 150, 200
+    yy, xx = np.mgrid[0:h, 0:w]
+    field = cv2.GaussianBlur(rng.normal(0.0, 1.0, (h, w, 3)).astype(np.float32), (0, 0), 6) * 20 + 0.5
+    unknown = ((xx - 60) ** 2 / 50**2 + (yy - 70) ** 2 / 45**2 < 1) | (
+        (xx - 170) ** 2 + (yy - 10) ** 2 < 30**2
+    )
+    unknown |= (np.abs(yy - 120) <= 1) & (xx > 20) & (xx < 190)
+    unknown &= ~((xx - 60) ** 2 + (yy - 70) ** 2 < 6**2)
+    outside = ((xx - 40) ** 2 + (yy - 40) ** 2 < 8**2) | ((xx > 130) & (xx < 140) & (yy > 40) & (yy < 100))
+    unknown &= ~outside
+    cut_off = (xx > 100) & (xx < 125) & (yy > 135)
+    known = ~unknown & ~outside & ~cut_off & ~((xx > 95) & (xx < 130) & (yy > 130))
+    unknown |= cut_off
+    fallback = np.array([1.0, -2.0, 3.0], np.float32)
+    ours = _solve(field, known, unknown, fallback)
+    ref = _sparse_lu_solve(field, known, unknown, fallback)
+    assert np.abs(ours - ref)[unknown].max() < 1e-4 * np.ptp(ref[unknown & ~cut_off])
+    assert np.allclose(ours[cut_off], fallback, atol=1e-6)
+    # Few unknowns: the finest grid is the coarsest, solved directly.
+    small = (xx - 60) ** 2 + (yy - 70) ** 2 < 5**2
+    ours, ref = _solve(field, ~small, small, fallback), _sparse_lu_solve(field, ~small, small, fallback)
+    assert np.abs(ours - ref)[small].max() < 1e-5
 
 
 # --- colour models --------------------------------------------------------------------------------

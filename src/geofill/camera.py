@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
+import cv2
 import numpy as np
 
 #: The paper's fixed focal length (px) for its 1280x720 images.
@@ -123,6 +124,33 @@ def make_pose(R: np.ndarray, t: np.ndarray) -> np.ndarray:
     T[:3, :3] = R
     T[:3, 3] = np.asarray(t, dtype=np.float64).reshape(3)
     return T
+
+
+def rotation_from_rotvec(rotvec: np.ndarray) -> np.ndarray:
+    """3x3 rotation matrix of a rotation vector (axis times angle in radians): OpenCV's Rodrigues,
+    instead of SciPy's ``Rotation``, which is not worth its import on the fill path
+    (:mod:`geofill.numerics`)."""
+    return cv2.Rodrigues(np.asarray(rotvec, np.float64).reshape(3, 1))[0]
+
+
+def quaternion_wxyz(R: np.ndarray) -> np.ndarray:
+    """Unit quaternion (w, x, y, z) of a rotation matrix, with the sign SciPy's
+    ``Rotation.from_matrix(R).as_quat()`` gives: built from the largest of the diagonal entries
+    and the trace (Markley's method), which keeps it accurate near every angle."""
+    R = np.asarray(R, np.float64)
+    diag = np.array([R[0, 0], R[1, 1], R[2, 2], np.trace(R)])
+    i = int(np.argmax(diag))
+    q = np.empty(4)  # x, y, z, w
+    if i == 3:
+        q[:] = R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1], 1.0 + diag[3]
+    else:
+        j, k = (i + 1) % 3, (i + 2) % 3
+        q[i] = 1.0 - diag[3] + 2.0 * R[i, i]
+        q[j] = R[j, i] + R[i, j]
+        q[k] = R[k, i] + R[i, k]
+        q[3] = R[k, j] - R[j, k]
+    q /= np.linalg.norm(q)
+    return np.array([q[3], q[0], q[1], q[2]])
 
 
 def rotation_error_deg(R_a: np.ndarray, R_b: np.ndarray) -> float:

@@ -22,10 +22,10 @@ from typing import Any
 
 import cv2
 import numpy as np
-from scipy.optimize import least_squares
 
 from .config import RefineConfig
 from .membrane import membrane_fill, resize_channels
+from .numerics import robust_linear_fit
 from .render import RenderResult
 from .residual_flow import band_flow, compose_maps
 
@@ -88,26 +88,15 @@ def fit_colour_gain(
     src = _as_float(source).reshape(-1, channels)[idx].astype(np.float64)
     dst = _as_float(target).reshape(-1, channels)[idx].astype(np.float64)
     gains, offsets = np.ones(channels), np.zeros(channels)
+    n = 2 if offset else 1
+    lower = np.array([_GAIN_BOUNDS[0], _OFFSET_BOUNDS[0]])[:n]
+    upper = np.array([_GAIN_BOUNDS[1], _OFFSET_BOUNDS[1]])[:n]
     for c in range(channels):
-        x, y = src[:, c], dst[:, c]
+        A = np.column_stack([src[:, c], np.ones(len(idx))])[:, :n]
+        fit = robust_linear_fit(A, dst[:, c], _LOSS, _LOSS_SCALE, lower, upper, x0=np.array([1.0, 0.0])[:n])
+        gains[c] = fit[0]
         if offset:
-            fit = least_squares(
-                lambda p, x=x, y=y: p[0] * x + p[1] - y,
-                x0=[1.0, 0.0],
-                loss=_LOSS,
-                f_scale=_LOSS_SCALE,
-                bounds=([_GAIN_BOUNDS[0], _OFFSET_BOUNDS[0]], [_GAIN_BOUNDS[1], _OFFSET_BOUNDS[1]]),
-            )
-            gains[c], offsets[c] = fit.x
-        else:
-            fit = least_squares(
-                lambda p, x=x, y=y: p[0] * x - y,
-                x0=[1.0],
-                loss=_LOSS,
-                f_scale=_LOSS_SCALE,
-                bounds=([_GAIN_BOUNDS[0]], [_GAIN_BOUNDS[1]]),
-            )
-            gains[c] = fit.x[0]
+            offsets[c] = fit[1]
     return ColourGain(gains, offsets, n_known)
 
 

@@ -15,10 +15,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from ..config import GeometryConfig
 from ..errors import ReferenceUnusable
+from ..numerics import robust_linear_fit
 from ..triangulation import TriangulatedPoints
 from . import DepthPrediction
 
@@ -61,8 +61,9 @@ def sample_at(values: np.ndarray, uv: np.ndarray) -> np.ndarray:
 def fit_affine(
     x: np.ndarray, y: np.ndarray, robust: bool, scale_only: bool = False, weights: np.ndarray | None = None
 ) -> tuple[float, float]:
-    """Least-squares ``y ~ s x + b`` (``b = 0`` when ``scale_only``); Huber IRLS when ``robust``;
-    each sample weighted by ``weights`` (>= 0) when given."""
+    """Least-squares ``y ~ s x + b`` (``b = 0`` when ``scale_only``); a Huber M-estimate (loss
+    scale: the residuals' MAD) when ``robust``; each sample weighted by ``weights`` (>= 0) when
+    given."""
     sw = np.ones_like(x) if weights is None else np.sqrt(np.asarray(weights, dtype=np.float64))
     A = np.stack([x, np.zeros_like(x) if scale_only else np.ones_like(x)], axis=1)
     (s, b), *_ = np.linalg.lstsq(A * sw[:, None], y * sw, rcond=None)
@@ -70,12 +71,9 @@ def fit_affine(
         r = y - (s * x + b)
         mad = 1.4826 * np.median(np.abs(r - np.median(r)))
         f_scale = max(mad, 1e-6 * max(np.abs(y).max(), 1e-12))
-        if scale_only:
-            sol = least_squares(lambda p: sw * (p[0] * x - y), [s], loss="huber", f_scale=f_scale)
-            s, b = sol.x[0], 0.0
-        else:
-            sol = least_squares(lambda p: sw * (p[0] * x + p[1] - y), [s, b], loss="huber", f_scale=f_scale)
-            s, b = sol.x
+        n = 1 if scale_only else 2
+        p = robust_linear_fit(A[:, :n] * sw[:, None], y * sw, "huber", f_scale, x0=np.array([s, b])[:n])
+        s, b = p[0], (0.0 if scale_only else p[1])
     return float(s), float(b)
 
 

@@ -8,9 +8,8 @@ import math
 from typing import NamedTuple
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
-from ..camera import Intrinsics
+from ..camera import Intrinsics, rotation_from_rotvec
 from .objective import (
     evaluate,
     feature_gauss_newton,
@@ -105,7 +104,7 @@ class _Chart:
 
     def retract(self, d: np.ndarray) -> PoseDepthParams:
         """The parameters at ``d`` (exact rotation and a unit-sphere translation)."""
-        R = Rotation.from_rotvec(d[:3]).as_matrix() @ self.p.R
+        R = rotation_from_rotvec(d[:3]) @ self.p.R
         t = self.p.t / self.norm + self.B @ d[3:5]
         return PoseDepthParams(
             R,

@@ -10,9 +10,8 @@ from typing import Any, NamedTuple
 
 import numpy as np
 from array_api_compat import array_namespace
-from scipy.spatial.transform import Rotation
 
-from ..camera import Intrinsics, make_pose
+from ..camera import Intrinsics, make_pose, quaternion_wxyz
 
 #: Coordinate given to points that must not touch the target (bilinear sampling returns zeros).
 _FAR_PX = 1e6
@@ -37,8 +36,7 @@ class PoseDepthParams:
         return make_pose(self.R, self.t)
 
     def quaternion_wxyz(self) -> np.ndarray:
-        x, y, z, w = Rotation.from_matrix(self.R).as_quat()
-        return np.array([w, x, y, z])
+        return quaternion_wxyz(self.R)
 
     def is_finite(self) -> bool:
         values = [*self.R.ravel(), *self.t, self.scale, self.offset, self.log_focal]
