@@ -3,6 +3,9 @@ ray-cast synthetic scene rendered with its exact depth and pose."""
 
 from __future__ import annotations
 
+import subprocess
+import sys
+
 import cv2
 import numba
 import numpy as np
@@ -189,9 +192,9 @@ def test_njit_cached_compiles_in_memory_when_no_cache_folder_is_writable(monkeyp
     # Only the IPython locator, which never serves a file-backed function: numba finds no cache
     # folder, as for a read-only install run without a writable home.
     monkeypatch.setattr(numba.config, "CACHE_LOCATOR_CLASSES", "IPythonCacheLocator")
+    add = njit_cached()(_add_three)
     with pytest.warns(RuntimeWarning, match="NUMBA_CACHE_DIR"):
-        add = njit_cached()(_add_three)
-    assert add(4) == 7
+        assert add(4) == 7  # numba builds the kernel on its first use
     assert add._cache.__class__.__name__ == "NullCache"
 
 
@@ -199,3 +202,21 @@ def test_njit_cached_uses_the_disk_cache_where_writable():
     add = njit_cached()(_add_three)
     assert add(4) == 7
     assert add._cache.__class__.__name__ == "FunctionCache"
+
+
+def test_numba_starts_on_first_use_or_in_the_background():
+    """Importing the pipeline does not import numba (0.4 s of every process); ``warm_up`` starts it
+    in a thread, and a kernel calling an inlined kernel of its module still compiles."""
+    code = (
+        "import sys, geofill.pipeline, geofill.jit as jit\n"
+        "before = 'numba' in sys.modules\n"
+        "jit.warm_up(); jit._WARM_UP[0].join()\n"
+        "import geofill.render as r\n"
+        "print(before, 'numba' in sys.modules, type(r._raster_triangle).__name__)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["False", "True", "Kernel"]
+    depth = np.full((120, 160), 5.0, np.float32)
+    r = render_mesh(depth, K, K, make_pose(np.eye(3), [0.1, 0.0, 0.0]), 0.04)
+    assert r.alpha.any()
+    assert type(render_module._raster_triangle).__name__ == "CPUDispatcher"  # replaced on first use

@@ -37,6 +37,7 @@ from .geometry import Geometry, optimize_geometry
 from .inpaint import Inpainter, get_inpainter
 from .intrinsics import ExifLens
 from .io import as_rgb_uint8, validate_pair
+from .jit import warm_up
 from .matching import Matches, match_pair
 from .merge import merge_fill
 from .pose import PoseEstimate, estimate_pose
@@ -311,6 +312,7 @@ def fill(
     >>> result.report.status, bool((result.image[~pair.hole] == pair.target[~pair.hole]).all())
     ('reference', True)
     """
+    warm_up()  # numba starts while matching runs
     cfg = config or FillConfig()
     prog = progress or Progress(quiet=True, time_budget_s=cfg.time_budget_s)
     images = [sources] if isinstance(sources, np.ndarray) and sources.ndim == 3 else list(sources)
