@@ -175,3 +175,15 @@ def config_model() -> type:
         return create_model(cls.__name__, __doc__=cls.__doc__, **fields)
 
     return build(FillConfig)
+
+
+def with_config_schema(openapi: dict[str, Any], path: str) -> dict[str, Any]:
+    """``openapi`` (a generated OpenAPI document) with :func:`config_model`'s schema as the
+    response of ``GET path`` and its sections among the components."""
+    schema = config_model().model_json_schema(ref_template="#/components/schemas/{model}")
+    components = openapi.setdefault("components", {}).setdefault("schemas", {})
+    components.update(schema.pop("$defs", {}))
+    components[schema["title"]] = schema
+    ok = openapi["paths"][path]["get"]["responses"]["200"]
+    ok["content"] = {"application/json": {"schema": {"$ref": f"#/components/schemas/{schema['title']}"}}}
+    return openapi
