@@ -65,15 +65,19 @@ class RenderResult:
 
     def sample(self, source: np.ndarray) -> np.ndarray:
         """Source colours at the correspondence field, bilinear; zero where ``alpha`` is False."""
-        rows, cols = self.window()
         out = np.zeros((*self.alpha.shape, *source.shape[2:]), source.dtype)
+        out[self.window()] = self.sample_window(source)
+        return out
+
+    def sample_window(self, source: np.ndarray) -> np.ndarray:
+        """:meth:`sample` on :meth:`window` only."""
+        rows, cols = self.window()
         win = cv2.remap(
             source, self.map_x[rows, cols], self.map_y[rows, cols], cv2.INTER_LINEAR,
             borderMode=cv2.BORDER_REPLICATE,
         )  # fmt: skip
         win[~self.alpha[rows, cols]] = 0
-        out[rows, cols] = win
-        return out
+        return win
 
 
 @dataclass(frozen=True)
