@@ -145,3 +145,18 @@ def test_demo_writes_side_by_side_and_numbers(tmp_path, capsys):
     assert g["psnr_hole_db"] > s["psnr_hole_db"] + 3.0
     img = cv2.imread(str(tmp_path / "demo" / "side_by_side.png"))
     assert img.shape == (480, 5 * 640, 3)
+
+
+def test_command_exits_with_mains_status(files, tmp_path):
+    """``geofill`` (``cli.run``) ends the process with :func:`main`'s status, output flushed."""
+    import subprocess
+    import sys
+
+    d, _ = files
+    ok = subprocess.run([sys.executable, "-m", "geofill.cli", "config"], capture_output=True, text=True)
+    assert ok.returncode == 0 and json.loads(ok.stdout)["depth"]["backend"] == "auto"
+    args = ["fill", "--target", str(d / "missing.png"), "--mask", str(d / "mask.png")]
+    args += ["--source", str(d / "source.png"), "-o", str(tmp_path / "out.png")]
+    bad = subprocess.run([sys.executable, "-m", "geofill.cli", *args], capture_output=True, text=True)
+    assert bad.returncode == main(args) != 0
+    assert bad.stderr.strip().startswith("geofill: error:") and "missing.png" in bad.stderr

@@ -7,6 +7,7 @@ SIGTERM is turned into an exception, so an output being written is removed like 
 from __future__ import annotations
 
 import argparse
+import gc
 import os
 import signal
 import sys
@@ -433,5 +434,15 @@ def main(argv: list[str] | None = None) -> int:
         signal.signal(signal.SIGTERM, previous)
 
 
+def run() -> typing.NoReturn:
+    """The ``geofill`` command: :func:`main`, then exit with its status."""
+    code = main()
+    # Whatever is alive now lives until the process ends: frozen, it is skipped by the garbage
+    # collection passes of the interpreter's exit, which took 0.2 s after a fill (numba's and
+    # the pipeline's objects) against 0.03 s frozen.
+    gc.freeze()
+    sys.exit(code)
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    run()
