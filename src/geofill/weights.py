@@ -23,10 +23,7 @@ is a one-line error naming the extra.
 from __future__ import annotations
 
 import hashlib
-import http.client
 import os
-import urllib.error
-import urllib.request
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -185,6 +182,8 @@ def download(
     (network error, truncated body, size or checksum mismatch) with nothing left at ``dest``.
     ``progress_bar``: a tqdm bar on stderr (tqdm comes with huggingface_hub)."""
     require("huggingface_hub", f"downloading {spec.name}")
+    import urllib.request  # with its TLS stack, for downloads only (0.02 s of every fill's imports)
+
     from huggingface_hub.utils import build_hf_headers
 
     url = spec.download_url(endpoint)
@@ -272,6 +271,9 @@ def resolve_weights(
     if say is not None:
         size = f" ({spec.size / 1e6:.0f} MB)" if spec.size else ""
         say(f"downloading {spec.name}{size} from {url}")
+    import http.client
+    import urllib.error
+
     try:
         download(spec, cached, endpoint)
     except urllib.error.HTTPError as exc:
