@@ -327,10 +327,13 @@ class OptimizeConfig:
     #: ``paper`` solver: convergence threshold eps_opt and window m of the supplement's test.
     paper_eps: Annotated[float, Range(0, 1)] = 1e-6
     paper_window: Annotated[int, Range(1, 100_000)] = 10
-    #: ``fast`` solver: Levenberg-Marquardt iterations per level, coarse to fine.
+    #: ``fast`` solver: Levenberg-Marquardt iterations per level, coarse to fine. The finest level
+    #: starts where the coarser ones converged: 4 steps there (was 8) gave the same hole PSNR over 3
+    #: mask seeds x 23 DEV pairs (mean change +0.001 dB, none beyond 0.05 dB) and cut the stage on
+    #: berlin_01_02 from 0.38 to 0.28 s (objective equal to 4 digits).
     fast_iterations: Annotated[
         list[Annotated[int, Range(0, 10_000)]], Length(1, 8, min_of="pyramid_levels")
-    ] = field(default_factory=lambda: [30, 20, 12, 8])
+    ] = field(default_factory=lambda: [30, 20, 12, 4])
     #: ``fast`` solver: a level stops when an accepted step lowers the objective by less than this
     #: (relative).
     fast_ftol: Annotated[float, Range(0, 1)] = 1e-6
