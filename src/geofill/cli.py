@@ -127,11 +127,9 @@ def cmd_fill(args: argparse.Namespace) -> int:
         validate_pair,
         write_image_atomic,
     )
-    from .jit import warm_up
     from .pipeline import fill
     from .preflight import check_resources
 
-    warm_up()  # numba starts while the images are decoded (the fill would start it anyway)
     cfg = _config_from_args(args)
     check_output_path(args.output)
     lossy = Path(args.output).suffix.lower() in _LOSSY_OUTPUTS
