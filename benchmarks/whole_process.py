@@ -14,6 +14,11 @@ pair dev_opensfm_berlin_01_02 at its own 1280x960 with the evaluation's stroke h
 ``4k`` (the synthetic scene at 3840x2160). Time vs pixels: the exponent of 720p -> 4k.
 
     .venv/bin/python benchmarks/whole_process.py [--runs 5] [--cases 720p,berlin,4k] [--set KEY=VALUE ...]
+        [--before REV|SRC]
+
+``--before REV`` (a git revision of this checkout, exported to a temporary folder) or ``--before SRC``
+(a source folder) also runs that code's ``geofill fill`` in every round, with its own defaults, and
+its own ratio to the baseline: a before/after comparison in one run.
 """
 
 from __future__ import annotations
@@ -49,11 +54,11 @@ def _make_inputs(case: str, folder: Path) -> None:
         write_inputs(SYNTHETIC_SIZES[case], None, folder)
 
 
-def _timed(cmd: list[str]) -> tuple[float, float]:
+def _timed(cmd: list[str], env: dict[str, str] | None = None) -> tuple[float, float]:
     """(wall s, peak RSS MB) of one child process; raises if it fails."""
     with tempfile.TemporaryFile() as err:
         t0 = time.perf_counter()
-        proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=err)
+        proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=err, env=env)
         _, status, usage = os.wait4(proc.pid, 0)
         wall = time.perf_counter() - t0
         proc.returncode = os.waitstatus_to_exitcode(status)
@@ -93,22 +98,34 @@ def _geofill() -> str:
     return str(Path(sys.executable).parent / "geofill")
 
 
-def _paired(folder: Path, runs: int, overrides: list[str]) -> dict[str, list[float]]:
+def _paired(folder: Path, runs: int, overrides: list[str], before: str | None) -> dict[str, list[float]]:
+    """Per run: geofill, the baseline and (with ``before``, another source tree) the earlier code,
+    one after the other on the same files."""
     io = ["--target", str(folder / "target.png"), "--mask", str(folder / "mask.png")]
     io += ["--source", str(folder / "source.png")]
     sets = [x for s in overrides for x in ("--set", s)]
-    geo = [_geofill(), "fill", *io, "-o", str(folder / "geofill.png"), "--quiet", *sets]
-    base = [sys.executable, str(HERE / "homography_baseline.py"), *io, "-o", str(folder / "base.png")]
-    _timed(geo), _timed(base)  # warm-up
-    out: dict[str, list[float]] = {"geofill": [], "baseline": [], "ratio": [], "rss": [], "rss_base": []}
+    cmds = {
+        "geofill": [_geofill(), "fill", *io, "-o", str(folder / "geofill.png"), "--quiet", *sets],
+        "baseline": [sys.executable, str(HERE / "homography_baseline.py"), *io, "-o", str(folder / "b.png")],
+    }
+    envs: dict[str, dict[str, str] | None] = {name: None for name in cmds}
+    if before is not None:
+        # The earlier tree's command as its console script ran it (main() of its geofill.cli),
+        # with its own defaults: it need not know today's config keys.
+        launch = "import sys; from geofill.cli import main; sys.exit(main())"
+        cmds["before"] = [sys.executable, "-c", launch, "fill", *io, "-o", str(folder / "p.png"), "--quiet"]
+        envs["before"] = {**os.environ, "PYTHONPATH": before}
+    for name, cmd in cmds.items():
+        _timed(cmd, envs[name])  # warm-up
+    out: dict[str, list[float]] = {}
     for _ in range(runs):
-        tg, rg = _timed(geo)
-        tb, rb = _timed(base)
-        out["geofill"].append(tg)
-        out["baseline"].append(tb)
-        out["ratio"].append(tg / tb)
-        out["rss"].append(rg)
-        out["rss_base"].append(rb)
+        for name, cmd in cmds.items():
+            wall, rss = _timed(cmd, envs[name])
+            out.setdefault(name, []).append(wall)
+            out.setdefault(f"{name} rss", []).append(rss)
+        out.setdefault("ratio", []).append(out["geofill"][-1] / out["baseline"][-1])
+        if before is not None:
+            out.setdefault("before ratio", []).append(out["before"][-1] / out["baseline"][-1])
     return out
 
 
@@ -117,11 +134,31 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--runs", type=int, default=5)
     ap.add_argument("--cases", default="720p,berlin,4k")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
+    ap.add_argument(
+        "--before", metavar="REV|SRC", help="earlier code to run alongside: a git revision or a src folder"
+    )
     ap.add_argument("--make-inputs", nargs=2, metavar=("CASE", "DIR"), help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.make_inputs:
         _make_inputs(args.make_inputs[0], Path(args.make_inputs[1]))
         return 0
+    with tempfile.TemporaryDirectory() as tmp:
+        if args.before and not Path(args.before).is_dir():
+            args.before = _export_src(args.before, Path(tmp))
+        return _run(args)
+
+
+def _export_src(rev: str, folder: Path) -> str:
+    """The ``src`` folder of git revision ``rev`` of this checkout, exported under ``folder``."""
+    git = ["git", "-C", str(HERE.parent)]
+    archive = subprocess.run([*git, "archive", rev, "src"], check=True, capture_output=True).stdout
+    subprocess.run(["tar", "-x", "-C", str(folder)], input=archive, check=True)
+    short = subprocess.check_output([*git, "rev-parse", "--short", rev], text=True).strip()
+    print(f"before: {rev} = {short}")
+    return str(folder / "src")
+
+
+def _run(args: argparse.Namespace) -> int:
     print(f"load average before: {' '.join(f'{v:.2f}' for v in os.getloadavg())} ({os.cpu_count()} cpus)")
     for name, cmd in (("geofill --help", [_geofill(), "--help"]), ("geofill config", [_geofill(), "config"])):
         _timed(cmd)
@@ -134,23 +171,27 @@ def main(argv: list[str] | None = None) -> int:
         f"{page_s:.3f} s until the page is served (runs {args.runs})"
     )
     medians: dict[str, float] = {}
-    print(
-        f"{'case':<8s}{'geofill s':>11s}{'baseline s':>12s}{'ratio':>8s}{'peak RSS MB':>13s}"
-        f"{'base RSS MB':>13s}  geofill runs"
-    )
+    head = f"{'case':<8s}{'geofill s':>11s}{'baseline s':>12s}{'ratio':>8s}"
+    head += f"{'peak RSS MB':>13s}{'base RSS MB':>13s}"
+    if args.before:
+        head += f"{'before s':>10s}{'ratio':>7s}{'RSS MB':>8s}"
+    print(head + "  geofill runs")
     for case in filter(None, args.cases.split(",")):
         if case == "berlin" and not (PAIRS / BERLIN).is_dir():
             print(f"{case:<8s} skipped: {PAIRS / BERLIN} not found")
             continue
         with tempfile.TemporaryDirectory() as tmp:
             subprocess.run([sys.executable, __file__, "--make-inputs", case, tmp], check=True)
-            r = _paired(Path(tmp), args.runs, args.set)
+            r = _paired(Path(tmp), args.runs, args.set, args.before)
         med = {k: statistics.median(v) for k, v in r.items()}
         medians[case] = med["geofill"]
-        print(
-            f"{case:<8s}{med['geofill']:11.3f}{med['baseline']:12.3f}{med['ratio']:8.2f}{med['rss']:13.0f}"
-            f"{med['rss_base']:13.0f}  {' '.join(f'{t:.2f}' for t in r['geofill'])}"
+        row = (
+            f"{case:<8s}{med['geofill']:11.3f}{med['baseline']:12.3f}{med['ratio']:8.2f}"
+            f"{med['geofill rss']:13.0f}{med['baseline rss']:13.0f}"
         )
+        if args.before:
+            row += f"{med['before']:10.3f}{med['before ratio']:7.2f}{med['before rss']:8.0f}"
+        print(f"{row}  {' '.join(f'{t:.2f}' for t in r['geofill'])}")
     if "720p" in medians and "4k" in medians:
         exponent = math.log(medians["4k"] / medians["720p"]) / math.log(9.0)
         print(f"time grows as pixels^{exponent:.2f} (720p -> 4k, 9x the pixels)")
