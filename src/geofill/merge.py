@@ -11,6 +11,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from .distance import distance_to
 from .inpaint import Inpainter, mask_window
 
 
@@ -30,7 +31,7 @@ def blend_map(hole: np.ndarray, alpha: np.ndarray, feather_px: float) -> np.ndar
     regions = large[labels]
     if not regions.any():
         return covered.astype(np.float32)
-    dist = cv2.distanceTransform((~regions).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    dist = distance_to(regions)
     np.divide(dist, np.float32(feather_px), out=dist)
     np.minimum(dist, 1.0, out=dist)
     dist[~covered] = 0.0

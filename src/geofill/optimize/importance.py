@@ -1,6 +1,6 @@
 """The paper's pixel importance weight map W = W_h * W_e (Sec. 3.2), computed on the target.
 
-W_h = exp(-d^2 / 2 sigma^2), d = Euclidean distance to the hole (``cv2.distanceTransform``), so the
+W_h = exp(-d^2 / 2 sigma^2), d = Euclidean distance to the hole (:func:`geofill.distance.distance_to`), so the
 optimisation cares most about what borders the hole. W_e = sum_k e_k / sum_p e_k(p) over Canny edge
 maps e_k of the target blurred with different Gaussian kernels, each dilated: strong edges are where
 misalignment shows. Each edge map is normalised by its own sum, so W_e sums to the number of
@@ -17,6 +17,7 @@ import cv2
 import numpy as np
 
 from ..config import OptimizeConfig
+from ..distance import distance_to
 from ..matching import to_gray_u8
 
 
@@ -29,8 +30,7 @@ def odd_kernel(size_px: float) -> int:
 def hole_weight(hole: np.ndarray, sigma_px: float) -> np.ndarray:
     """W_h: exp(-d^2 / 2 sigma^2) with d the distance (px) of each pixel to the nearest hole pixel
     (0 inside the hole, so W_h = 1 there). float32, the shape of ``hole``."""
-    known = np.where(hole, 0, 255).astype(np.uint8)
-    d = cv2.distanceTransform(known, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    d = distance_to(hole)
     return np.exp(-(d.astype(np.float64) ** 2) / (2.0 * sigma_px**2)).astype(np.float32)
 
 
