@@ -112,10 +112,11 @@ SECTIONS = [
     ),
     Section(
         "speed",
-        "Speed and memory by image size (`benchmarks/speed.py`)",
-        "Synthetic pair, one fresh process per size reading and writing files like the CLI; peak RSS is the "
-        "process's VmHWM.",
-        [PY, "benchmarks/speed.py"],
+        "Speed and memory by image size, per stage, before and after the speed work (`benchmarks/speed.py`)",
+        "Synthetic pair, one fresh process per size reading and writing files like the CLI (medians of 3 "
+        "runs); peak RSS is the process's VmHWM. `--baseline f15f0eb` runs the code as it was before the "
+        "speed work (its defaults), alternating with this checkout run by run, and adds the ratios.",
+        [PY, "benchmarks/speed.py", "--sizes", "1280x720,3840x2160", "--runs", "3", "--baseline", "f15f0eb"],
     ),
     Section(
         "refine_eval",
@@ -228,14 +229,30 @@ SECTIONS = [
     ),
     Section(
         "whole_process",
-        "Whole-process time against the homography baseline (`benchmarks/whole_process.py`, issue 15)",
-        "`geofill fill` and `geofill --help` / `geofill config` as a user runs them, each fill run paired "
-        "with the standalone OpenCV SIFT + MAGSAC homography + colour-gain script "
-        "(`benchmarks/homography_baseline.py`) on the same files; medians of 5 runs after a warm-up. The "
-        "machine has 2 cores shared with other jobs (load average printed): the ratio is the figure "
-        "that carries over, the seconds are inflated by the load. 4K and the pixel exponent: add "
-        "`--cases 720p,berlin,4k`.",
-        [PY, "benchmarks/whole_process.py", "--runs", "5", "--cases", "720p,berlin"],
+        "Whole-process time against the homography baseline (`benchmarks/whole_process.py`)",
+        "`geofill fill`, `geofill --help`, `geofill config` and `geofill serve` as a user runs them, each "
+        "fill paired with the standalone OpenCV SIFT + MAGSAC homography + colour-gain script "
+        "(`benchmarks/homography_baseline.py`) on the same files, and with the code before the speed "
+        "work (`--before f15f0eb`, its defaults) in the same rounds; medians of 5 runs after a warm-up. "
+        "The ratios to the baseline are the figures that carry over between machines (load average "
+        "printed).",
+        [
+            PY,
+            "benchmarks/whole_process.py",
+            "--runs",
+            "5",
+            "--cases",
+            "720p,berlin,4k",
+            "--before",
+            "f15f0eb",
+        ],
+    ),
+    Section(
+        "speed_quality",
+        "Fill quality before and after the speed work (`benchmarks/eval_revisions.py`)",
+        "`geofill eval` on the 23 DEV pairs with the code before the speed work (f15f0eb) and this "
+        "checkout, mask seeds 0-2, hole PSNR changes per pair and seed.",
+        [PY, "benchmarks/eval_revisions.py", "--before", "f15f0eb", "--seeds", "0,1,2"],
     ),
     Section(
         "focal",

@@ -5,12 +5,12 @@ Each size runs in a fresh Python process that reads the images from files and wr
 the CLI does, so its peak RSS is that of one real fill. Peak RSS is VmHWM from /proc/self/status
 (Linux): ru_maxrss would carry the parent's high-water mark over fork+exec. Inputs are a synthetic ray-cast
 pair (default) or a real pair resized to each size (``--pair DIR``). ``--runs N`` reports per-stage
-medians of N measured processes per size; ``--baseline SRC`` runs another source tree (a checkout's
-``src`` folder) on the same inputs, alternating with this one run by run so that load from other
+medians of N measured processes per size; ``--baseline REV|SRC`` runs other code (a git revision of
+this checkout, exported to a temporary folder, or a ``src`` folder) on the same inputs, alternating with this one run by run so that load from other
 jobs falls on both alike, and adds its medians and the ratio (this / baseline).
 
     .venv/bin/python benchmarks/speed.py [--sizes 1280x720,3840x2160] [--pair ../shared/data/pairs/X]
-    [--runs 3] [--baseline ../main/src] [--set key=value ...]
+    [--runs 3] [--baseline REV|SRC] [--set key=value ...]
 """
 
 from __future__ import annotations
@@ -150,7 +150,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--pair", help="a real pair folder, resized to each size (default: synthetic scene)")
     ap.add_argument("--runs", type=int, default=1, help="measured processes per size (medians)")
     ap.add_argument(
-        "--baseline", metavar="SRC", help="another source tree to run alternately, e.g. ../main/src"
+        "--baseline",
+        metavar="REV|SRC",
+        help="other code to run alternately: a git revision of this checkout or a src folder",
     )
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
     ap.add_argument("--child", help=argparse.SUPPRESS)
@@ -158,6 +160,15 @@ def main(argv: list[str] | None = None) -> int:
     if args.child:
         _child(Path(args.child), args.set)
         return 0
+    with tempfile.TemporaryDirectory() as tmp:
+        if args.baseline and not Path(args.baseline).is_dir():
+            from whole_process import _export_src
+
+            args.baseline = _export_src(args.baseline, Path(tmp))
+        return _run(args)
+
+
+def _run(args: argparse.Namespace) -> int:
     sizes = [tuple(int(v) for v in s.split("x")) for s in args.sizes.split(",")]
     trees = [None] if args.baseline is None else [None, str(Path(args.baseline).resolve())]
     results: list[list[dict]] = [[] for _ in trees]
