@@ -6,8 +6,9 @@ the CLI does, so its peak RSS is that of one real fill. Peak RSS is VmHWM from /
 (Linux): ru_maxrss would carry the parent's high-water mark over fork+exec. Inputs are a synthetic ray-cast
 pair (default) or a real pair resized to each size (``--pair DIR``). ``--runs N`` reports per-stage
 medians of N measured processes per size; ``--baseline REV|SRC`` runs other code (a git revision of
-this checkout, exported to a temporary folder, or a ``src`` folder) on the same inputs, alternating with this one run by run so that load from other
-jobs falls on both alike, and adds its medians and the ratio (this / baseline).
+this checkout, exported to a temporary folder, or a ``src`` folder) on the same inputs, alternating
+with this one run by run so that load from other jobs falls on both alike, and adds its medians and
+the ratio (this / baseline).
 
     .venv/bin/python benchmarks/speed.py [--sizes 1280x720,3840x2160] [--pair ../shared/data/pairs/X]
     [--runs 3] [--baseline REV|SRC] [--set key=value ...]
