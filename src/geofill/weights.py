@@ -184,13 +184,15 @@ def download(
     require("huggingface_hub", f"downloading {spec.name}")
     import urllib.request  # with its TLS stack, for downloads only (0.02 s of every fill's imports)
 
-    from huggingface_hub.utils import build_hf_headers
+    from . import __version__
 
     url = spec.download_url(endpoint)
     dest.parent.mkdir(parents=True, exist_ok=True)
     tmp = dest.with_name(f"{dest.name}.part-{os.getpid()}")
-    # Public files only: no token is sent, so none can follow a redirect to another host.
-    req = urllib.request.Request(url, headers=build_hf_headers(token=False))
+    # Public files only: no token is sent, so none can follow a redirect to another host. The
+    # headers are geofill's own: huggingface_hub's (build_hf_headers) first fetch the hub's
+    # "agent harnesses" list (a telemetry request, up to 3 s when the hub is slow).
+    req = urllib.request.Request(url, headers={"user-agent": f"geofill/{__version__}"})
     try:
         with urllib.request.urlopen(req, timeout=timeout) as resp, open(tmp, "wb") as out:
             announced = resp.headers.get("Content-Length")
