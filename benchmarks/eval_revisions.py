@@ -2,6 +2,7 @@
 both, over several mask seeds, then the per-pair and per-seed changes (``compare_seeds.py``).
 
     .venv/bin/python benchmarks/eval_revisions.py --before REV [--seeds 0,1,2] [--pairs DIR] [--keep DIR]
+        [--references all]   # multi-reference sets (../shared/data/multiview): the fill with all references
 
 The earlier revision's ``src`` is exported to a temporary folder and run with ``PYTHONPATH`` (its own
 defaults); both use this environment's packages. A speed change is meant to leave the mean within
@@ -23,10 +24,12 @@ from whole_process import PAIRS, _export_src  # this folder is on sys.path when 
 HERE = Path(__file__).resolve().parent
 
 
-def _eval(out: Path, pairs: str, seed: str, src: str | None) -> None:
+def _eval(out: Path, args: argparse.Namespace, seed: str, src: str | None) -> None:
     env = {**os.environ, "PYTHONPATH": src} if src else None
-    cmd = [sys.executable, "-m", "geofill.cli", "eval", "--pairs", pairs, "--out", str(out)]
+    cmd = [sys.executable, "-m", "geofill.cli", "eval", "--pairs", args.pairs, "--out", str(out)]
     cmd += ["--methods", "geofill", "--seed", seed]
+    if args.references:
+        cmd += ["--references", args.references]
     subprocess.run(cmd, check=True, env=env, stdout=subprocess.DEVNULL)
 
 
@@ -36,15 +39,20 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seeds", default="0,1,2")
     ap.add_argument("--pairs", default=str(PAIRS))
     ap.add_argument("--keep", metavar="DIR", help="write the eval folders here (default: a temporary one)")
+    ap.add_argument(
+        "--references", help="multi-reference sets: eval's --references (e.g. all), compared as geofill[all]"
+    )
     args = ap.parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(args.keep or tmp)
         before = args.before if Path(args.before).is_dir() else _export_src(args.before, Path(tmp))
         for seed in args.seeds.split(","):
-            _eval(work / f"before_s{seed}", args.pairs, seed, before)
-            _eval(work / f"after_s{seed}", args.pairs, seed, None)
+            _eval(work / f"before_s{seed}", args, seed, before)
+            _eval(work / f"after_s{seed}", args, seed, None)
         compare = [sys.executable, str(HERE / "compare_seeds.py"), str(work / "before_s{seed}")]
         compare += [str(work / "after_s{seed}"), "--seeds", args.seeds]
+        if args.references:
+            compare += ["--method", f"geofill[{args.references}]"]
         return subprocess.run(compare, check=False).returncode
 
 

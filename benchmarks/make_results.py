@@ -255,6 +255,13 @@ SECTIONS = [
         [PY, "benchmarks/eval_revisions.py", "--before", "f15f0eb", "--seeds", "0,1,2"],
     ),
     Section(
+        "speed_quality_multiview",
+        "Several references before and after the speed work (`benchmarks/eval_revisions.py`)",
+        "As above on the 7 multi-reference sets, the fill with all references (`geofill[all]`).",
+        [PY, "benchmarks/eval_revisions.py", "--before", "f15f0eb", "--seeds", "0,1,2"]
+        + ["--pairs", str(MULTIVIEW), "--references", "all"],
+    ),
+    Section(
         "focal",
         "Focal length from the pair (`benchmarks/focal_bench.py`, issue 7)",
         "Focal and pose accuracy per estimator on the GT pairs and rendered scenes, then whole fills with "
