@@ -1,5 +1,5 @@
 """Fill quality of this checkout against an earlier revision: ``geofill eval`` on the DEV pairs for
-both, over several mask seeds, then the per-pair and per-seed changes (``compare_seeds.py``).
+both, over several mask seeds, then the per-pair and per-seed changes (``compare_eval.py``).
 
     .venv/bin/python benchmarks/eval_revisions.py --before REV [--seeds 0,1,2] [--pairs DIR] [--keep DIR]
         [--references all]   # multi-reference sets (../shared/data/multiview): the fill with all references
@@ -49,7 +49,7 @@ def main(argv: list[str] | None = None) -> int:
         for seed in args.seeds.split(","):
             _eval(work / f"before_s{seed}", args, seed, before)
             _eval(work / f"after_s{seed}", args, seed, None)
-        compare = [sys.executable, str(HERE / "compare_seeds.py"), str(work / "before_s{seed}")]
+        compare = [sys.executable, str(HERE / "compare_eval.py"), str(work / "before_s{seed}")]
         compare += [str(work / "after_s{seed}"), "--seeds", args.seeds]
         if args.references:
             compare += ["--method", f"geofill[{args.references}]"]

@@ -5,7 +5,6 @@ first estimate of the epipolar geometry."""
 from __future__ import annotations
 
 import ctypes
-import ctypes.util
 import functools
 import time
 from collections.abc import Callable
@@ -95,9 +94,9 @@ def detect_sift_pair(
 
 @functools.cache
 def _malloc_trim() -> Callable[[int], int] | None:
-    try:
-        return ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").malloc_trim
-    except (OSError, AttributeError):  # not glibc (macOS, Windows, musl): nothing to release
+    try:  # the C library is among the process's own symbols
+        return ctypes.CDLL(None).malloc_trim
+    except (OSError, AttributeError, TypeError):  # not glibc (macOS, Windows, musl): nothing to release
         return None
 
 
