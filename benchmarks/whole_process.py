@@ -110,9 +110,10 @@ def _paired(folder: Path, runs: int, overrides: list[str], before: str | None) -
     }
     envs: dict[str, dict[str, str] | None] = {name: None for name in cmds}
     if before is not None:
-        # The earlier tree's command as its console script ran it (main() of its geofill.cli),
-        # with its own defaults: it need not know today's config keys.
-        launch = "import sys; from geofill.cli import main; sys.exit(main())"
+        # The earlier tree's command as its console script runs it (run() of its geofill.cli, or
+        # main() where there was no run() yet), with its own defaults: it need not know today's
+        # config keys.
+        launch = "import sys; from geofill import cli; sys.exit(cli.run() if hasattr(cli, 'run') else cli.main())"
         cmds["before"] = [sys.executable, "-c", launch, "fill", *io, "-o", str(folder / "p.png"), "--quiet"]
         envs["before"] = {**os.environ, "PYTHONPATH": before}
     for name, cmd in cmds.items():

@@ -10,13 +10,15 @@ import numpy as np
 from .camera import Intrinsics
 from .config import FillConfig
 from .intrinsics import ExifLens, resolve_intrinsics
+from .matching import to_gray_u8
 from .resolution import px_scale, resize_long, resize_mask_any
 
 
 @dataclass(frozen=True)
 class WorkingViews:
-    """Target and one source as float32 RGB in [0, 1] at working resolution, the target's hole,
-    and each image's prior intrinsics (flag, EXIF or default) at that resolution."""
+    """Target and one source as float32 RGB in [0, 1] at working resolution (and as 8-bit grey, what
+    SIFT and the edge detector read), the target's hole, and each image's prior intrinsics (flag,
+    EXIF or default) at that resolution."""
 
     target: np.ndarray
     source: np.ndarray
@@ -25,6 +27,9 @@ class WorkingViews:
     K_source: Intrinsics
     target_shape: tuple[int, int]  # (H, W) of the input target
     ransac_px: float  # inlier threshold of the robust fits at this resolution (MatchingConfig.ransac_px)
+    # HxW uint8, from the 8-bit working images: converting the float views back cost 30 ms a fill.
+    target_gray: np.ndarray
+    source_gray: np.ndarray
 
     @property
     def px_scale(self) -> float:
@@ -60,11 +65,21 @@ def prepare_views(
     t = resize_long(target, cfg.working_max_side)
     s = resize_long(source, cfg.working_max_side)
     return WorkingViews(
-        t.astype(np.float32) / 255.0,
-        s.astype(np.float32) / 255.0,
+        _unit_float(t),
+        _unit_float(s),
         resize_mask_any(hole, cfg.working_max_side),
         K_t.resized(t.shape[1], t.shape[0]),
         K_s.resized(s.shape[1], s.shape[0]),
         (target.shape[0], target.shape[1]),
         cfg.matching.ransac_px(px_scale(t.shape)),
+        to_gray_u8(t),
+        to_gray_u8(s),
     )
+
+
+def _unit_float(image: np.ndarray) -> np.ndarray:
+    """uint8 -> float32 in [0, 1], divided in place (the same values as ``image / 255.0``, one
+    full-size temporary fewer)."""
+    out = image.astype(np.float32)
+    out /= 255.0
+    return out

@@ -54,7 +54,7 @@ def score_candidate(
     # Plain SIFT: ranking candidates must not climb the matching ladder (ASIFT) for each of them;
     # the fill itself climbs it for the references picked.
     plain = dataclasses.replace(cfg.matching, max_rung="sift")
-    matches = match_pair(views.target, views.source, views.hole, plain, views.px_scale)
+    matches = match_pair(views.target_gray, views.source_gray, views.hole, plain, views.px_scale)
     if len(matches) == 0:
         return 0, 0
     # Distance (working px) of every pixel to the nearest hole pixel.
