@@ -276,7 +276,9 @@ def _solve_coarse(
 
 def resize_channels(field: np.ndarray, size: tuple[int, int], interpolation: int) -> np.ndarray:
     """``cv2.resize`` of an (H, W, C) array to ``size`` = (width, height), any C (OpenCV resizes at
-    most 4 channels at once)."""
+    most 4 channels at once); ``field`` itself when it has that size already (OpenCV would copy it)."""
+    if (field.shape[1], field.shape[0]) == tuple(size):
+        return field
     parts = [
         cv2.resize(np.ascontiguousarray(field[..., i : i + 4]), size, interpolation=interpolation)
         for i in range(0, field.shape[2], 4)
