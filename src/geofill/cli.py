@@ -286,7 +286,8 @@ def cmd_serve(args: argparse.Namespace) -> int:
         import webbrowser
 
         threading.Timer(1.5, webbrowser.open, (url,)).start()
-    uvicorn.run(create_app(settings, cfg), host=args.host, port=args.port, log_level="warning")
+    # No websocket routes: "none" spares importing a websocket library where one is installed.
+    uvicorn.run(create_app(settings, cfg), host=args.host, port=args.port, log_level="warning", ws="none")
     return 0
 
 
