@@ -233,14 +233,14 @@ SECTIONS = [
         "`geofill fill`, `geofill --help`, `geofill config` and `geofill serve` as a user runs them, each "
         "fill paired with the standalone OpenCV SIFT + MAGSAC homography + colour-gain script "
         "(`benchmarks/homography_baseline.py`) on the same files, and with the code before the speed "
-        "work (`--before f15f0eb`, its defaults) in the same rounds; medians of 5 runs after a warm-up. "
-        "The ratios to the baseline are the figures that carry over between machines (load average "
-        "printed).",
+        "work (`--before f15f0eb`, its defaults) in the same rounds; medians of 7 runs after a warm-up. "
+        "Both trees are byte-compiled first, as `pip install` leaves a package. The ratios to the "
+        "baseline are the figures that carry over between machines (load average printed).",
         [
             PY,
             "benchmarks/whole_process.py",
             "--runs",
-            "5",
+            "7",
             "--cases",
             "720p,berlin,4k",
             "--before",
