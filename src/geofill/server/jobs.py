@@ -26,6 +26,11 @@ from .worker import STAGES, JobSpec, worker_main
 MAX_NOTES = 200
 #: How often (s) a slot checks for Cancel while its worker is busy (messages wake it at once).
 POLL_S = 0.2
+#: A slot starts its worker process this long after the server starts, or when the first job comes
+#: if sooner: started together, the worker's imports (another process on the same two cores) made
+#: the page 0.02 s later (0.29 -> 0.27 s until it is served, `benchmarks/whole_process.py`), and a
+#: first fill rarely comes within a second of the start.
+WORKER_START_DELAY_S = 1.0
 
 
 def default_workers() -> int:
@@ -259,7 +264,10 @@ class JobManager:
 
     def _slot_loop(self) -> None:
         slot = threading.current_thread().name
-        worker: _Worker | None = self._new_worker(slot)  # started now: the first fill finds it warm
+        with self._cv:  # started ahead of the first job, so that it finds the worker warm
+            self._cv.wait_for(lambda: self._queue or self._stopping, timeout=WORKER_START_DELAY_S)
+            stopping = self._stopping
+        worker: _Worker | None = None if stopping else self._new_worker(slot)
         try:
             while (job := self._take()) is not None:
                 worker = worker or self._new_worker(slot)
