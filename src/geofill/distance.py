@@ -34,33 +34,27 @@ def distance_to(mask: np.ndarray) -> np.ndarray:
     if not mask.any():
         return np.full(mask.shape, np.inf, np.float32)
     squared = np.where(mask, 0.0, np.inf)
-    _columns_then_rows(squared)
+    _lower_envelope_rows(squared.T)  # along the columns, then along the rows: the 2-D transform
+    _lower_envelope_rows(squared)
     out = np.empty(mask.shape, np.float32)
     np.sqrt(squared, out=out, casting="same_kind")
     return out
 
 
 @njit_cached(nogil=True)
-def _columns_then_rows(sq):  # pragma: no cover - compiled
-    """In place: ``sq`` (0 on the mask, inf elsewhere) -> squared distance to the mask."""
-    h, w = sq.shape
-    n = max(h, w)
-    line = np.empty(n)
-    out = np.empty(n)
-    v = np.empty(n, np.int64)
-    z = np.empty(n + 1)
-    for x in range(w):
-        for y in range(h):
-            line[y] = sq[y, x]
-        _envelope_1d(line, h, out, v, z)
-        for y in range(h):
-            sq[y, x] = out[y]
-    for y in range(h):
-        for x in range(w):
-            line[x] = sq[y, x]
+def _lower_envelope_rows(a):  # pragma: no cover - compiled
+    """In place, each row of ``a`` (any strides): ``a[r, q] <- min_p (q - p)^2 + a[r, p]``."""
+    h, w = a.shape
+    line = np.empty(w)
+    out = np.empty(w)
+    v = np.empty(w, np.int64)
+    z = np.empty(w + 1)
+    for r in range(h):
+        for q in range(w):
+            line[q] = a[r, q]
         _envelope_1d(line, w, out, v, z)
-        for x in range(w):
-            sq[y, x] = out[x]
+        for q in range(w):
+            a[r, q] = out[q]
 
 
 @njit_cached(nogil=True, inline="always")
@@ -76,9 +70,7 @@ def _envelope_1d(f, n, out, v, z):  # pragma: no cover - compiled
             s = ((f[q] + q * q) - (f[p] + p * p)) / (2.0 * (q - p))
             if s > z[k]:
                 break
-            k -= 1
-        if k < 0:
-            s = -np.inf
+            k -= 1  # never below 0: z[0] is -inf
         k += 1
         v[k] = q
         z[k] = s
