@@ -119,6 +119,13 @@ SECTIONS = [
         [PY, "benchmarks/speed.py", "--sizes", "1280x720,3840x2160", "--runs", "3", "--baseline", "f15f0eb"],
     ),
     Section(
+        "speed_warm",
+        "The stages' own cost: a second fill in one process (`benchmarks/speed.py --warm`)",
+        "As above at 1280x720, timing a second fill in each process: no numba start-up, lazy imports or "
+        "first page faults. What the method costs after matching, whatever the process around it.",
+        [PY, "benchmarks/speed.py", "--sizes", "1280x720", "--runs", "3", "--warm"],
+    ),
+    Section(
         "refine_eval",
         "Refinement ablation on the real pairs (`geofill eval`, issue 6)",
         "The render pasted as is (`no_refine`), residual flow only (`flow`), colour only (`colour`: smooth "

@@ -5,13 +5,14 @@ Each size runs in a fresh Python process that reads the images from files and wr
 the CLI does, so its peak RSS is that of one real fill. Peak RSS is VmHWM from /proc/self/status
 (Linux): ru_maxrss would carry the parent's high-water mark over fork+exec. Inputs are a synthetic ray-cast
 pair (default) or a real pair resized to each size (``--pair DIR``). ``--runs N`` reports per-stage
-medians of N measured processes per size; ``--baseline REV|SRC`` runs other code (a git revision of
-this checkout, exported to a temporary folder, or a ``src`` folder) on the same inputs, alternating
-with this one run by run so that load from other jobs falls on both alike, and adds its medians and
-the ratio (this / baseline).
+medians of N measured processes per size; ``--warm`` times a second fill in each process (the
+stages' own cost, without numba's start-up and other first-use costs). ``--baseline REV|SRC`` runs
+other code (a git revision of this checkout, exported to a temporary folder, or a ``src`` folder)
+on the same inputs, alternating with this one run by run so that load from other jobs falls on
+both alike, and adds its medians and the ratio (this / baseline).
 
     .venv/bin/python benchmarks/speed.py [--sizes 1280x720,3840x2160] [--pair ../shared/data/pairs/X]
-    [--runs 3] [--baseline REV|SRC] [--set key=value ...]
+    [--runs 3] [--warm] [--baseline REV|SRC] [--set key=value ...]
 """
 
 from __future__ import annotations
@@ -39,8 +40,9 @@ def _peak_rss_mb() -> float:
     raise RuntimeError("no VmHWM in /proc/self/status (this benchmark needs Linux)")
 
 
-def _child(folder: Path, overrides: list[str]) -> None:
-    """Runs in the subprocess: one timed fill from files; prints a JSON line."""
+def _child(folder: Path, overrides: list[str], warm: bool) -> None:
+    """Runs in the subprocess: one timed fill from files (after an untimed one if ``warm``); prints
+    a JSON line."""
     baseline_mb = _peak_rss_mb()
     from geofill.config import FillConfig, parse_overrides
     from geofill.io import read_image, read_mask, write_image_atomic
@@ -48,6 +50,13 @@ def _child(folder: Path, overrides: list[str]) -> None:
 
     import_mb = _peak_rss_mb()
     cfg = FillConfig().updated(parse_overrides(overrides))
+    if warm:
+        fill(
+            read_image(folder / "target.png").pixels,
+            read_mask(folder / "mask.png"),
+            read_image(folder / "source.png").pixels,
+            cfg,
+        )
     t0 = time.perf_counter()
     target = read_image(folder / "target.png", max_pixels=cfg.max_pixels)
     source = read_image(folder / "source.png", max_pixels=cfg.max_pixels)
@@ -98,9 +107,10 @@ def write_inputs(size: tuple[int, int], pair_dir: str | None, folder: Path) -> N
     write_pair_files(folder, target, source, hole)
 
 
-def _measure(folder: Path, overrides: list[str], src: str | None) -> dict:
+def _measure(folder: Path, overrides: list[str], src: str | None, warm: bool = False) -> dict:
     """One fill in a fresh process (``src`` first on its path when given); its JSON record."""
     cmd = [sys.executable, __file__, "--child", str(folder), *(x for s in overrides for x in ("--set", s))]
+    cmd += ["--warm"] if warm else []
     env = {**os.environ, "PYTHONPATH": src} if src else None
     out = subprocess.run(cmd, check=True, capture_output=True, text=True, env=env).stdout
     return json.loads(out.strip().splitlines()[-1])
@@ -156,10 +166,15 @@ def main(argv: list[str] | None = None) -> int:
         help="other code to run alternately: a git revision of this checkout or a src folder",
     )
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
+    ap.add_argument(
+        "--warm",
+        action="store_true",
+        help="time a second fill in each process: the stages without a fresh process's first-use costs",
+    )
     ap.add_argument("--child", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.child:
-        _child(Path(args.child), args.set)
+        _child(Path(args.child), args.set, args.warm)
         return 0
     with tempfile.TemporaryDirectory() as tmp:
         if args.baseline and not Path(args.baseline).is_dir():
@@ -181,7 +196,7 @@ def _run(args: argparse.Namespace) -> int:
             records: list[list[dict]] = [[] for _ in trees]
             for _ in range(max(1, args.runs)):
                 for k, src in enumerate(trees):
-                    records[k].append(_measure(Path(tmp), args.set, src))
+                    records[k].append(_measure(Path(tmp), args.set, src, args.warm))
         for k in range(len(trees)):
             r = _median(records[k])
             r["size"], r["pixels"] = f"{w}x{h}", w * h
