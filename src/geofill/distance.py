@@ -43,45 +43,35 @@ def distance_to(mask: np.ndarray) -> np.ndarray:
 
 @njit_cached(nogil=True)
 def _lower_envelope_rows(a):  # pragma: no cover - compiled
-    """In place, each row of ``a`` (any strides): ``a[r, q] <- min_p (q - p)^2 + a[r, p]``."""
+    """In place, each row of ``a`` (any strides): ``a[r, q] <- min_p (q - p)^2 + a[r, p]`` over the
+    finite ``a[r, p]`` (inf where none is finite)."""
     h, w = a.shape
-    line = np.empty(w)
-    out = np.empty(w)
-    v = np.empty(w, np.int64)
-    z = np.empty(w + 1)
+    f = np.empty(w)  # the row being transformed (the row itself is overwritten)
+    v = np.empty(w, np.int64)  # vertices of the parabolas on the lower envelope
+    z = np.empty(w + 1)  # where each of them takes over from the one before
     for r in range(h):
         for q in range(w):
-            line[q] = a[r, q]
-        _envelope_1d(line, w, out, v, z)
+            f[q] = a[r, q]
+        k = -1
         for q in range(w):
-            a[r, q] = out[q]
-
-
-@njit_cached(nogil=True, inline="always")
-def _envelope_1d(f, n, out, v, z):  # pragma: no cover - compiled
-    """``out[q] = min_p (q - p)^2 + f[p]`` over the finite ``f[p]`` (inf where none is finite)."""
-    k = -1
-    for q in range(n):
-        if f[q] == np.inf:
-            continue  # a parabola at infinity is never the lowest: leaving it out keeps the arithmetic finite
-        s = -np.inf
-        while k >= 0:
-            p = v[k]
-            s = ((f[q] + q * q) - (f[p] + p * p)) / (2.0 * (q - p))
-            if s > z[k]:
-                break
-            k -= 1  # never below 0: z[0] is -inf
-        k += 1
-        v[k] = q
-        z[k] = s
-        z[k + 1] = np.inf
-    if k < 0:
-        for q in range(n):
-            out[q] = np.inf
-        return
-    j = 0
-    for q in range(n):
-        while z[j + 1] < q:
-            j += 1
-        p = v[j]
-        out[q] = (q - p) * (q - p) + f[p]
+            if f[q] == np.inf:
+                continue  # never the lowest; leaving it out keeps the arithmetic finite
+            s = -np.inf
+            while k >= 0:
+                p = v[k]
+                s = ((f[q] + q * q) - (f[p] + p * p)) / (2.0 * (q - p))
+                if s > z[k]:
+                    break
+                k -= 1  # never below 0: z[0] is -inf
+            k += 1
+            v[k] = q
+            z[k] = s
+            z[k + 1] = np.inf
+        if k < 0:
+            continue  # no finite value: the row stays inf
+        j = 0
+        for q in range(w):
+            while z[j + 1] < q:
+                j += 1
+            p = v[j]
+            a[r, q] = (q - p) * (q - p) + f[p]

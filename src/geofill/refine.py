@@ -24,6 +24,7 @@ import cv2
 import numpy as np
 
 from .config import RefineConfig
+from .io import as_unit_float
 from .membrane import membrane_fill, resize_channels
 from .numerics import robust_linear_fit
 from .render import RenderResult
@@ -55,12 +56,6 @@ class ColourGain:
         return cls(np.ones(channels), np.zeros(channels), n_samples)
 
 
-def _as_float(image: np.ndarray) -> np.ndarray:
-    if image.dtype == np.uint8:
-        return image.astype(np.float32) / 255.0
-    return image.astype(np.float32, copy=False)
-
-
 def fit_colour_gain(
     source: np.ndarray,
     target: np.ndarray,
@@ -85,8 +80,8 @@ def fit_colour_gain(
         return ColourGain.identity(channels, n_known)
     # An even stride keeps the subsample deterministic and spread over the whole band.
     idx = idx[:: max(1, idx.size // max_samples)]
-    src = _as_float(source).reshape(-1, channels)[idx].astype(np.float64)
-    dst = _as_float(target).reshape(-1, channels)[idx].astype(np.float64)
+    src = as_unit_float(source).reshape(-1, channels)[idx].astype(np.float64)
+    dst = as_unit_float(target).reshape(-1, channels)[idx].astype(np.float64)
     gains, offsets = np.ones(channels), np.zeros(channels)
     n = 2 if offset else 1
     lower = np.array([_GAIN_BOUNDS[0], _OFFSET_BOUNDS[0]])[:n]
@@ -103,7 +98,7 @@ def fit_colour_gain(
 def apply_colour_gain(image: np.ndarray, colour: ColourGain) -> np.ndarray:
     """``gain * image + offset`` per channel, clipped; returns the dtype it was given (uint8 rounded,
     float in [0, 1])."""
-    out = _as_float(image) * colour.gain.astype(np.float32) + colour.offset.astype(np.float32)
+    out = as_unit_float(image) * colour.gain.astype(np.float32) + colour.offset.astype(np.float32)
     out = np.clip(out, 0.0, 1.0)
     if image.dtype == np.uint8:
         return np.rint(out * 255.0).astype(np.uint8)
@@ -170,7 +165,7 @@ def robust_band_weights(
 ) -> np.ndarray:
     """(H, W) float32 weights in [0, 1] of band pixels (0 off the band): Cauchy weights of their
     residual under the global colour map ``prior``."""
-    res = apply_colour_gain(_as_float(render), prior) - _as_float(target)
+    res = apply_colour_gain(as_unit_float(render), prior) - as_unit_float(target)
     r = np.sqrt(np.mean(res * res, axis=2))
     return np.where(band, 1.0 / (1.0 + (r / _ROBUST_SCALE) ** 2), 0.0).astype(np.float32)
 
@@ -189,7 +184,7 @@ def smooth_gain_field(
     ``prior``'s by ``eps`` (intensity variance), then both fields membrane-filled over ``domain``
     (the hole and its band).
     ``render``/``target``: HxWxC uint8 or float in [0, 1]."""
-    r, t = _as_float(render), _as_float(target)
+    r, t = as_unit_float(render), as_unit_float(target)
     c = r.shape[2]
     w = weights[..., None]
     # The statistics are Gaussian-weighted sums of per-pixel moments: block sums on a grid a few
@@ -234,7 +229,7 @@ def poisson_field(
     gradients inside the hole and equals the target on the band. With ``smooth_px`` > 0 the
     difference is first averaged (Gaussian, band ``weights``) so misaligned texture does not streak
     into the hole; ``smooth_px`` = 0 is the exact Poisson blend on the band's trusted pixels."""
-    r, t = _as_float(render), _as_float(target)
+    r, t = as_unit_float(render), as_unit_float(target)
     diff = t - r
     if smooth_px > 0:
         W = _gauss(weights, smooth_px)

@@ -10,6 +10,7 @@ import numpy as np
 from .camera import Intrinsics
 from .config import FillConfig
 from .intrinsics import ExifLens, resolve_intrinsics
+from .io import as_unit_float
 from .matching import to_gray_u8
 from .resolution import px_scale, resize_long, resize_mask_any
 
@@ -17,8 +18,8 @@ from .resolution import px_scale, resize_long, resize_mask_any
 @dataclass(frozen=True)
 class WorkingViews:
     """Target and one source as float32 RGB in [0, 1] at working resolution (and as 8-bit grey, what
-    SIFT and the edge detector read), the target's hole, and each image's prior intrinsics (flag,
-    EXIF or default) at that resolution."""
+    SIFT reads), the target's hole, and each image's prior intrinsics (flag, EXIF or default) at
+    that resolution."""
 
     target: np.ndarray
     source: np.ndarray
@@ -65,8 +66,8 @@ def prepare_views(
     t = resize_long(target, cfg.working_max_side)
     s = resize_long(source, cfg.working_max_side)
     return WorkingViews(
-        _unit_float(t),
-        _unit_float(s),
+        as_unit_float(t),
+        as_unit_float(s),
         resize_mask_any(hole, cfg.working_max_side),
         K_t.resized(t.shape[1], t.shape[0]),
         K_s.resized(s.shape[1], s.shape[0]),
@@ -75,11 +76,3 @@ def prepare_views(
         to_gray_u8(t),
         to_gray_u8(s),
     )
-
-
-def _unit_float(image: np.ndarray) -> np.ndarray:
-    """uint8 -> float32 in [0, 1], divided in place (the same values as ``image / 255.0``, one
-    full-size temporary fewer)."""
-    out = image.astype(np.float32)
-    out /= 255.0
-    return out
