@@ -42,11 +42,11 @@ from geofill.config import FillConfig
 from geofill.evaluation.metrics import psnr
 from geofill.evaluation.runner import load_pairs, pair_mask
 from geofill.focal import estimate_focal
-from geofill.matching import match_pair
+from geofill.match import match_pair
 from geofill.pipeline import fill
 from geofill.pose import estimate_pose
+from geofill.prepare import prepare_views
 from geofill.synthetic import make_pair
-from geofill.views import prepare_views
 
 METHODS = ("none", "search", "bougnoux", "auto")
 CFG = FillConfig()

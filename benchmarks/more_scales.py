@@ -19,10 +19,10 @@ import numpy as np
 
 from geofill.config import FillConfig
 from geofill.evaluation.runner import load_pairs, pair_mask
-from geofill.matching import match_pair
-from geofill.matching.features import detect_sift, keypoint_mask, mutual_ratio_matches, to_gray_u8
-from geofill.matching.ladder import verify_fundamental
-from geofill.views import prepare_views
+from geofill.match import match_pair
+from geofill.match.features import detect_sift, keypoint_mask, mutual_ratio_matches, to_gray_u8
+from geofill.match.ladder import verify_fundamental
+from geofill.prepare import prepare_views
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "pairs"
 FACTORS = ((1.0, 0.5), (0.5, 1.0), (1.0, 0.7), (0.7, 1.0), (0.5, 0.5), (1.0, 1.4), (1.4, 1.0))

@@ -21,12 +21,12 @@ from pathlib import Path
 
 import numpy as np
 
+from geofill.composite.inpaint import get_inpainter
+from geofill.composite.merge import merge_fill
 from geofill.config import FillConfig, parse_overrides
 from geofill.evaluation.baselines import BaselineError, homography_fill
 from geofill.evaluation.metrics import psnr
 from geofill.evaluation.runner import load_pairs, pair_mask
-from geofill.inpaint import get_inpainter
-from geofill.merge import merge_fill
 from geofill.pipeline import fill
 from geofill.refine import refine_render
 from geofill.render import RenderResult

@@ -22,8 +22,8 @@ import numpy as np
 from geofill.camera import pose_errors_deg
 from geofill.config import FillConfig
 from geofill.evaluation.runner import load_pairs, pair_mask
-from geofill.matching import match_pair
-from geofill.views import prepare_views
+from geofill.match import match_pair
+from geofill.prepare import prepare_views
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "pairs"
 

@@ -19,7 +19,7 @@ from geofill.depth.stereo import Hypotheses, SweepResult
 from geofill.errors import DepthModelError, ReferenceUnusable
 from geofill.pipeline import fill
 from geofill.synthetic import make_pair
-from geofill.triangulation import TriangulatedPoints
+from geofill.triangulate import TriangulatedPoints
 
 DA2, DPT, MIDAS = "depth-anything-v2-small", "dpt-hybrid", "midas-v2.1-small"
 

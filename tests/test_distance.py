@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy.ndimage import distance_transform_edt
 
-from geofill.distance import distance_to
+from geofill.utils.distance import distance_to
 
 
 @pytest.mark.parametrize(

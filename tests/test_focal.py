@@ -15,7 +15,7 @@ from geofill.config import FillConfig, IntrinsicsConfig
 from geofill.focal import _EpipolarFit, bougnoux_candidate, bougnoux_focals, estimate_focal
 from geofill.intrinsics import resolve_intrinsics
 from geofill.io import ExifCamera
-from geofill.matching import Matches, match_pair
+from geofill.match import Matches, match_pair
 from geofill.pipeline import fill
 from geofill.pose import estimate_pose
 from geofill.synthetic import make_pair

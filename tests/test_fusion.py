@@ -9,9 +9,9 @@ import cv2
 import numpy as np
 import pytest
 
+from geofill.composite.inpaint import mask_window
 from geofill.config import FillConfig
-from geofill.fusion import Fusion, _known_ring, fuse_references, gaussian_blur
-from geofill.inpaint import mask_window
+from geofill.fuse import Fusion, _known_ring, fuse_references, gaussian_blur
 from geofill.render import RenderResult
 
 

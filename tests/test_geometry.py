@@ -10,9 +10,9 @@ from geofill.camera import Intrinsics, make_pose, pose_errors_deg
 from geofill.config import GeometryConfig, MatchingConfig
 from geofill.depth import DepthPrediction
 from geofill.depth.align import align_depth, fit_affine, sample_at
-from geofill.matching import Matches
+from geofill.match import Matches
 from geofill.pose import estimate_pose
-from geofill.triangulation import TriangulatedPoints, project, triangulate
+from geofill.triangulate import TriangulatedPoints, project, triangulate
 
 K_T = Intrinsics.from_focal(700.0, 960, 540)
 K_S = Intrinsics.from_focal(820.0, 800, 600)  # different size and focal: each image has its own K
@@ -147,7 +147,7 @@ def test_align_depth_inverse_space_recovers_true_depth():
 
 def test_matching_keeps_no_duplicate_correspondences_and_no_hole_keypoints():
     from geofill.config import MatchingConfig as MC
-    from geofill.matching import match_pair
+    from geofill.match import match_pair
     from geofill.synthetic import make_pair
 
     p = make_pair(seed=4, width=320, height=240)

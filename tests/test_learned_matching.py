@@ -12,7 +12,7 @@ import pytest
 
 from geofill.config import MatchingConfig
 from geofill.errors import MatcherModelError
-from geofill.matching import match_pair
+from geofill.match import match_pair
 from geofill.models import registry
 from geofill.synthetic import SyntheticPair, make_pair
 

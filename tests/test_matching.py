@@ -13,8 +13,8 @@ import pytest
 
 from geofill.config import FillConfig, MatchingConfig
 from geofill.errors import ConfigError
-from geofill.matching import MIN_MATCHES_FOR_F, Matches, match_pair
-from geofill.matching.features import (
+from geofill.match import MIN_MATCHES_FOR_F, Matches, match_pair
+from geofill.match.features import (
     detect_sift,
     detect_sift_pair,
     epipolar_band,
@@ -22,7 +22,7 @@ from geofill.matching.features import (
     mutual_ratio_matches,
     to_gray_u8,
 )
-from geofill.matching.ladder import hole_support, verify_fundamental
+from geofill.match.ladder import hole_support, verify_fundamental
 from geofill.synthetic import SyntheticPair, make_pair
 
 SCALE = 320 / 1280
@@ -245,7 +245,7 @@ def test_memory_freed_in_worker_threads_goes_back_to_the_system() -> None:
     code = textwrap.dedent(
         """
         import threading, numpy as np
-        from geofill.matching.features import release_free_memory
+        from geofill.match.features import release_free_memory
         def rss_mb():
             with open("/proc/self/statm") as f:
                 return int(f.read().split()[1]) * 4096 / 2**20

@@ -7,9 +7,9 @@ import cv2
 import numpy as np
 import pytest
 
+from geofill.composite.inpaint import Inpainter, get_inpainter, mask_window
+from geofill.composite.merge import blend_map, merge_fill
 from geofill.config import InpaintConfig
-from geofill.inpaint import Inpainter, get_inpainter, mask_window
-from geofill.merge import blend_map, merge_fill
 
 
 def _scene(h: int = 240, w: int = 320, seed: int = 0):

@@ -6,13 +6,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from geofill.composite.inpaint import inpaint_single
+from geofill.composite.merge import merge_fill
 from geofill.config import FillConfig
 from geofill.evaluation.metrics import psnr
-from geofill.inpaint import inpaint_single
-from geofill.merge import merge_fill
 from geofill.pipeline import fill
-from geofill.resolution import config_px
 from geofill.synthetic import make_views
+from geofill.utils.resolution import config_px
 
 # Focal from the default prior (the views' true focal): the test is about fusion, not focal.
 CFG = FillConfig().updated({"intrinsics.estimate": "none"})
@@ -95,7 +95,7 @@ def test_one_reference_is_the_single_reference_fill(views, fills):
     ref = res.references[0]
     assert res.fusion.method == "single reference"
     feather = config_px(CFG.refine.feather_px, hole.shape)
-    from geofill.inpaint import get_inpainter
+    from geofill.composite.inpaint import get_inpainter
 
     masked = v.target.copy()
     masked[hole] = 0

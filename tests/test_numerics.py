@@ -1,4 +1,4 @@
-"""The routines written out instead of SciPy's (geofill.numerics, the rotation helpers of
+"""The routines written out instead of SciPy's (geofill.utils.numerics, the rotation helpers of
 geofill.camera) give SciPy's answers."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ from scipy.optimize import least_squares, minimize_scalar
 from scipy.spatial.transform import Rotation
 
 from geofill.camera import quaternion_wxyz, rotation_from_rotvec
-from geofill.numerics import minimize_bounded, robust_cost, robust_least_squares, robust_linear_fit
+from geofill.utils.numerics import minimize_bounded, robust_cost, robust_least_squares, robust_linear_fit
 
 
 def colour_samples(seed: int, gain: float, offset: float, outliers: float = 0.2, n: int = 4000):

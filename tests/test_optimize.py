@@ -16,7 +16,7 @@ import geofill.optimize as opt
 from geofill.camera import Intrinsics, default_focal_px, pose_errors_deg
 from geofill.config import FillConfig, OptimizeConfig
 from geofill.depth.align import AlignedDepth
-from geofill.matching import match_pair
+from geofill.match import match_pair
 from geofill.optimize import fast_solver as opt_fast
 from geofill.optimize import params as opt_params
 from geofill.optimize import stage as opt_stage

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from geofill.camera import pose_errors_deg
+from geofill.composite.inpaint import inpaint_single
 from geofill.config import FillConfig
 from geofill.evaluation.metrics import psnr
-from geofill.inpaint import inpaint_single
 from geofill.pipeline import fill
 from geofill.synthetic import make_pair
 

@@ -10,13 +10,12 @@ import numpy as np
 import pytest
 
 from geofill.camera import Intrinsics
+from geofill.composite.inpaint import LAMA_WEIGHTS, Inpainter, get_inpainter, inpaint_single
+from geofill.composite.lama import crop_window
+from geofill.composite.merge import blend_map, merge_fill
 from geofill.config import FillConfig, InpaintConfig, RefineConfig
 from geofill.errors import InpaintModelError
 from geofill.evaluation.metrics import psnr
-from geofill.inpaint import LAMA_WEIGHTS, Inpainter, get_inpainter, inpaint_single
-from geofill.lama import crop_window
-from geofill.membrane import _solve, membrane_fill
-from geofill.merge import blend_map, merge_fill
 from geofill.pipeline import fill
 from geofill.refine import (
     apply_colour_gain,
@@ -28,6 +27,7 @@ from geofill.refine import (
 )
 from geofill.render import render_mesh
 from geofill.synthetic import make_pair
+from geofill.utils.membrane import _solve, membrane_fill
 
 
 @pytest.fixture(scope="module")
@@ -381,7 +381,7 @@ def test_pipeline_reports_refinement_and_the_inpainter(pair, monkeypatch, tmp_pa
 def test_band_flow_on_thin_and_tiny_windows(h, w):
     """OpenCV's DIS crashed (segfault) on thin strips such as the 17 x 101 render window of a thin
     hole, and raised on tiny ones; the padded flow measures the shift there too."""
-    from geofill.residual_flow import band_flow
+    from geofill.utils.residual_flow import band_flow
 
     rng = np.random.default_rng(0)
     texture = cv2.GaussianBlur(rng.integers(0, 256, (h, w + 2, 3), dtype=np.uint8), (0, 0), 1.0)

@@ -14,9 +14,9 @@ import pytest
 import geofill.render as render_module
 from geofill.camera import Intrinsics, make_pose
 from geofill.evaluation.metrics import psnr
-from geofill.jit import njit_cached
 from geofill.render import project_source_grid, render_mesh, render_roi, triangle_masks
 from geofill.synthetic import depth_edges, make_pair
+from geofill.utils.jit import njit_cached
 
 K = Intrinsics.from_focal(300.0, 160, 120)
 
@@ -208,7 +208,7 @@ def test_numba_starts_on_first_use_or_in_the_background():
     """Importing the pipeline does not import numba (0.4 s of every process); ``warm_up`` starts it
     in a thread, and a kernel calling an inlined kernel of its module still compiles."""
     code = (
-        "import sys, geofill.pipeline, geofill.jit as jit\n"
+        "import sys, geofill.pipeline, geofill.utils.jit as jit\n"
         "before = 'numba' in sys.modules\n"
         "jit.warm_up(); jit._WARM_UP[0].join()\n"
         "import geofill.render as r\n"

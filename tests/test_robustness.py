@@ -168,8 +168,8 @@ def test_preflight_refuses_bad_depth_files_and_missing_weights(tmp_path):
 
 
 def test_missing_onnxruntime_is_a_stereo_choice_or_a_one_line_hint(monkeypatch):
+    from geofill.composite.inpaint import get_inpainter
     from geofill.depth import choose_backend
-    from geofill.inpaint import get_inpainter
 
     monkeypatch.setitem(sys.modules, "onnxruntime", None)
     cfg = FillConfig()
@@ -183,7 +183,7 @@ def test_missing_onnxruntime_is_a_stereo_choice_or_a_one_line_hint(monkeypatch):
 
 
 def test_missing_huggingface_hub_skips_the_hub_cache_and_names_the_extra(monkeypatch):
-    from geofill.inpaint import LAMA_WEIGHTS
+    from geofill.composite.inpaint import LAMA_WEIGHTS
     from geofill.weights import WeightsUnavailable, download, resolve_weights
 
     monkeypatch.setitem(sys.modules, "huggingface_hub", None)
@@ -226,8 +226,8 @@ def test_models_download_offline_is_one_line(capsys):
 
 def test_patchmatch_fills_only_the_hole_and_is_deterministic():
     pytest.importorskip("patchmatch")
+    from geofill.composite.inpaint import inpaint_single
     from geofill.config import InpaintConfig
-    from geofill.inpaint import inpaint_single
     from geofill.synthetic import make_pair
 
     p = make_pair(seed=4, width=160, height=120)
@@ -243,8 +243,8 @@ def test_patchmatch_fills_only_the_hole_and_is_deterministic():
 
 
 def test_patchmatch_without_the_extra_names_it(monkeypatch):
+    from geofill.composite.inpaint import get_inpainter
     from geofill.config import InpaintConfig
-    from geofill.inpaint import get_inpainter
 
     monkeypatch.setitem(sys.modules, "patchmatch", None)
     with pytest.raises(MissingExtraError, match=r'PatchMatch inpainting needs .*"geofill\[patchmatch\]"'):

@@ -9,7 +9,7 @@ from geofill.camera import Intrinsics
 from geofill.config import DepthConfig
 from geofill.depth import DepthContext
 from geofill.depth.sparse import SparseDepth
-from geofill.triangulation import TriangulatedPoints, project
+from geofill.triangulate import TriangulatedPoints, project
 
 
 def _context(points: TriangulatedPoints) -> DepthContext:

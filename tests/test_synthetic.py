@@ -10,7 +10,7 @@ import pytest
 
 from geofill.camera import default_focal_px, rotation_error_deg
 from geofill.config import MatchingConfig
-from geofill.matching import match_pair
+from geofill.match import match_pair
 from geofill.synthetic import SyntheticPair, covisible, depth_edges, make_pair, make_scene
 
 

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from geofill.config import FillConfig
-from geofill.geometry import optimize_geometry
+from geofill.optimize.stage import optimize_geometry
 from geofill.pipeline import ReferenceArtifacts, fill, prepare_fill, run_reference
 from geofill.synthetic import make_pair
 

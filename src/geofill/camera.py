@@ -129,7 +129,7 @@ def make_pose(R: np.ndarray, t: np.ndarray) -> np.ndarray:
 def rotation_from_rotvec(rotvec: np.ndarray) -> np.ndarray:
     """3x3 rotation matrix of a rotation vector (axis times angle in radians): OpenCV's Rodrigues,
     instead of SciPy's ``Rotation``, which is not worth its import on the fill path
-    (:mod:`geofill.numerics`)."""
+    (:mod:`geofill.utils.numerics`)."""
     return cv2.Rodrigues(np.asarray(rotvec, np.float64).reshape(3, 1))[0]
 
 

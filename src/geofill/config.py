@@ -151,7 +151,7 @@ class MatchingConfig:
     ransac_threshold_px: Annotated[float, Range(1e-3, 100.0)] = 1.0
     ransac_confidence: Annotated[float, Range(0.0, 1.0)] = 0.9999
     ransac_max_iters: Annotated[int, Range(1, 1_000_000)] = 10000
-    #: The escalation ladder (:mod:`geofill.matching.ladder`) climbs at most to this rung:
+    #: The escalation ladder (:mod:`geofill.match.ladder`) climbs at most to this rung:
     #: ``sift`` -> ``loose`` (more keypoints, looser ratio, stricter verification) -> ``asift``
     #: (affine-simulated SIFT) -> ``guided`` (matching along the epipolar lines of the best F so
     #: far), with ``learned`` (see below) between ``loose`` and ``asift`` when it is switched on.
@@ -191,7 +191,7 @@ class MatchingConfig:
     guided_band_px: Annotated[float, Range(0.1, 100.0)] = 3.0
     guided_ratio: Annotated[float, Range(0.0, 1.0)] = 0.8
     #: ``learned`` rung (between ``loose`` and ``asift``): an end-to-end keypoint + matcher ONNX
-    #: graph, e.g. the SuperPoint + LightGlue pipeline export (:mod:`geofill.matching.learned`).
+    #: graph, e.g. the SuperPoint + LightGlue pipeline export (:mod:`geofill.match.learned`).
     #: ``off``: never; ``auto``: when its weights resolve (``learned_model``,
     #: ``$GEOFILL_MATCHER_MODEL``, the cache), otherwise the rung is skipped and the report says
     #: why; ``on``: required, an error when it cannot be used. Off by default: no weights ship.
@@ -369,7 +369,7 @@ class RenderConfig:
 @dataclass
 class RefineConfig:
     """Residual alignment and colour correction of the render, then its merge with single-image
-    inpainting (:mod:`geofill.refine`, :mod:`geofill.merge`). Pixel distances are at a 1280-px
+    inpainting (:mod:`geofill.refine`, :mod:`geofill.composite.merge`). Pixel distances are at a 1280-px
     long side and scale with the image."""
 
     #: Colour/exposure correction fitted on the known band: "none"; "global" (one robust gain +
@@ -428,7 +428,7 @@ class InpaintConfig:
 
 @dataclass
 class FusionConfig:
-    """Choosing, per hole pixel, which reference supplies it (:mod:`geofill.fusion`). Pixel
+    """Choosing, per hole pixel, which reference supplies it (:mod:`geofill.fuse`). Pixel
     distances are at a 1280-px long side and scale with the image."""
 
     #: How references' regions meet: "feather" (per-pixel best reference, blended over

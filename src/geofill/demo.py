@@ -10,9 +10,9 @@ import cv2
 import numpy as np
 
 from .camera import pose_errors_deg
+from .composite.inpaint import inpaint_single
 from .config import FillConfig
 from .evaluation.metrics import psnr, ssim
-from .inpaint import inpaint_single
 from .io import write_image_atomic
 from .pipeline import fill
 from .progress import Progress

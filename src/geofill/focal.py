@@ -43,8 +43,9 @@ import numpy as np
 
 from .camera import Intrinsics, rotation_from_rotvec
 from .config import IntrinsicsConfig
-from .matching import MIN_MATCHES_FOR_F, Matches
-from .numerics import minimize_bounded, robust_least_squares
+from .match import MIN_MATCHES_FOR_F, Matches
+from .utils.numerics import minimize_bounded, robust_least_squares
+from .utils.rotations import SKEW_GENERATORS, left_jacobian, skew
 
 #: Step (in log focal) of the finite-difference curvature at the optimum.
 _CURVATURE_STEP = 0.02
@@ -476,7 +477,7 @@ def _half_width(x: np.ndarray, y: np.ndarray, level: float) -> float:
 def _bougnoux_right(F: np.ndarray) -> float:
     """Squared focal of the camera whose points multiply ``F`` on the right (principal point at the
     origin): f^2 = -(p'^T [e']x I~ F p p^T F^T p') / (p'^T [e']x I~ F I~ F^T p'), p = p' = (0,0,1)."""
-    ex = _skew(np.linalg.svd(F)[0][:, 2])  # [e]x, e the epipole of the other image: F^T e = 0
+    ex = skew(np.linalg.svd(F)[0][:, 2])  # [e]x, e the epipole of the other image: F^T e = 0
     i_tilde = np.diag([1.0, 1.0, 0.0])
     p = np.array([0.0, 0.0, 1.0])
     num = p @ ex @ i_tilde @ F @ np.outer(p, p) @ F.T @ p
@@ -501,7 +502,7 @@ def _bougnoux_log_scale(
 
 class _EpipolarFit:
     """Best essential matrix for given focal scales: robust trust-region Gauss-Newton (soft-L1
-    loss, :func:`geofill.numerics.robust_least_squares`) on the Sampson errors in pixels, over R
+    loss, :func:`geofill.utils.numerics.robust_least_squares`) on the Sampson errors in pixels, over R
     (rotation vector update) and the unit translation (two tangent coordinates)."""
 
     def __init__(
@@ -590,32 +591,15 @@ class _EpipolarFit:
 
         def fun_jac(x):
             R, t, norm = pose(x)
-            tx = _skew(t)
+            tx = skew(t)
             # d exp([w]) / dw_k = [J_l(w) e_k]x exp([w]), J_l the left Jacobian of SO(3), so
             # dE/dw_k = [t]x [J_l e_k]x R; dE/dx_3,4 = [dt]x R, dt the move of the normalised t.
             uv = np.array([u, v])
-            directions = np.vstack([_left_jacobian(x[:3]).T, (uv - np.outer(uv @ t, t)) / norm])
-            dE = np.tensordot(directions, _GENERATORS, 1)
+            directions = np.vstack([left_jacobian(x[:3]).T, (uv - np.outer(uv @ t, t)) / norm])
+            dE = np.tensordot(directions, SKEW_GENERATORS, 1)
             dE[:3] = tx @ dE[:3]
             return self.residuals(np.concatenate([(tx @ R)[None], dE @ R]), f_t, f_s)
 
         x, cost, res = robust_least_squares(fun_jac, np.zeros(5), "soft_l1", self.thr)
         R, t, _ = pose(x)
         return 2.0 * cost, res, (R, t)
-
-
-def _skew(v: np.ndarray) -> np.ndarray:
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
-
-
-#: [v]x = sum_k v_k _GENERATORS[k]: the skew matrices of many vectors in one tensor product.
-_GENERATORS = np.array([_skew(e) for e in np.eye(3)])
-
-
-def _left_jacobian(w: np.ndarray) -> np.ndarray:
-    """Left Jacobian of SO(3) at rotation vector ``w`` (neither OpenCV nor SciPy exposes it)."""
-    theta = float(np.linalg.norm(w))
-    W = _skew(w)
-    if theta < 1e-6:
-        return np.eye(3) + 0.5 * W
-    return np.eye(3) + (1.0 - np.cos(theta)) / theta**2 * W + (theta - np.sin(theta)) / theta**3 * W @ W

@@ -50,9 +50,9 @@ class ModelEntry:
 
 def registry() -> list[ModelEntry]:
     """Every model file geofill can use."""
+    from .composite.inpaint import LAMA_WEIGHTS
     from .depth.onnx import MODELS
-    from .inpaint import LAMA_WEIGHTS
-    from .matching.learned import MATCHER_WEIGHTS
+    from .match.learned import MATCHER_WEIGHTS
 
     entries = [
         ModelEntry(name, m.weights, f"learned depth (depth.model = {name})", "depth.model_path")

@@ -27,27 +27,27 @@ from typing import Any
 import numpy as np
 
 from .camera import Intrinsics
+from .composite.inpaint import Inpainter, get_inpainter
+from .composite.merge import merge_fill
 from .config import FillConfig
 from .depth import BackendChoice, DepthContext, choose_backend
 from .depth.stage import SourceDepth, estimate_depth, rotation_only_depth
 from .errors import ArrayFormatError, ReferenceUnusable
 from .focal import FocalEstimate, estimate_focal, shared_estimate, shared_focal_scale
-from .fusion import Fusion, fuse_references
-from .geometry import Geometry, optimize_geometry
-from .inpaint import Inpainter, get_inpainter
+from .fuse import Fusion, fuse_references
 from .intrinsics import ExifLens
 from .io import as_rgb_uint8, validate_pair
-from .jit import warm_up
-from .matching import Matches, match_pair
-from .merge import merge_fill
+from .match import Matches, match_pair
+from .optimize.stage import Geometry, optimize_geometry
 from .pose import PoseEstimate, estimate_pose
 from .preflight import check_resources
+from .prepare import WorkingViews, prepare_views
 from .progress import Progress
 from .refine import RefinedRender, refine_render
 from .render import ReferenceRender, render_reference
-from .resolution import config_px
-from .triangulation import TriangulatedPoints, triangulate
-from .views import WorkingViews, prepare_views
+from .triangulate import TriangulatedPoints, triangulate
+from .utils.jit import warm_up
+from .utils.resolution import config_px
 
 #: The per-reference stages in order, as (stage name, artifact field).
 REFERENCE_STAGES: tuple[tuple[str, str], ...] = (
@@ -395,7 +395,7 @@ def _run_references(
 
 def composite(ctx: FillContext, fusion: Fusion) -> np.ndarray:
     """The fused render inside the hole where it exists, single-image inpainting for the rest,
-    merged with a feathered blending map (:func:`geofill.merge.merge_fill`); pixels outside the
+    merged with a feathered blending map (:func:`geofill.composite.merge.merge_fill`); pixels outside the
     hole are copied from the target unchanged."""
     feather = config_px(ctx.cfg.refine.feather_px, ctx.hole.shape)
     return merge_fill(ctx.target, ctx.hole, fusion.image, fusion.alpha, ctx.inpainter, feather)

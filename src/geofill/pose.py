@@ -21,7 +21,7 @@ import numpy as np
 
 from .camera import Intrinsics, make_pose
 from .config import GeometryConfig, MatchingConfig
-from .matching import ROBUST_METHODS, Matches
+from .match import ROBUST_METHODS, Matches
 
 #: Minimal set sizes for a meaningful estimate (5-point E, 4-point H) with a safety factor.
 MIN_POINTS_E = 8

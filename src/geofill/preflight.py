@@ -9,11 +9,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from .composite.inpaint import get_inpainter
 from .config import FillConfig
 from .depth import choose_backend
 from .errors import ConfigError, DepthFileError, DepthModelError
 from .extras import require
-from .inpaint import get_inpainter
 from .io import read_depth_file
 
 

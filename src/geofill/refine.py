@@ -3,7 +3,7 @@
 The paper corrects the render with TransFill's learned colour-spatial transformer, whose weights are
 not public; here the same two jobs are done with classical tools, measured in docs/results.md:
 
-* residual spatial alignment (:mod:`geofill.residual_flow`): dense flow on the known band around the
+* residual spatial alignment (:mod:`geofill.utils.residual_flow`): dense flow on the known band around the
   hole, carried into the hole and composed with the render's correspondence field;
 * colour/exposure: the source was shot with another exposure / white balance. ``global``: a
   per-channel affine map ``target ≈ gain * render + offset`` fitted robustly on the band (what the
@@ -25,10 +25,10 @@ import numpy as np
 
 from .config import RefineConfig
 from .io import as_unit_float
-from .membrane import membrane_fill, resize_channels
-from .numerics import robust_linear_fit
 from .render import RenderResult
-from .residual_flow import band_flow, compose_maps
+from .utils.membrane import membrane_fill, resize_channels
+from .utils.numerics import robust_linear_fit
+from .utils.residual_flow import band_flow, compose_maps
 
 #: Fewer known pixels than this and the fit keeps the identity map.
 MIN_COLOUR_SAMPLES = 64

@@ -26,14 +26,14 @@ import cv2
 import numpy as np
 
 from .camera import Intrinsics
+from .composite.inpaint import mask_window
 from .config import RenderConfig
 from .errors import ReferenceUnusable
-from .inpaint import mask_window
-from .resolution import config_px
+from .utils.resolution import config_px
 
 if TYPE_CHECKING:
-    from .geometry import Geometry
-from .jit import njit_cached
+    from .optimize.stage import Geometry
+from .utils.jit import njit_cached
 
 #: Barycentric tolerance so pixels on shared edges are not lost between two triangles.
 _EPS_BARY = 1e-7

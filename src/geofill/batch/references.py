@@ -1,6 +1,6 @@
 """Picking a target's references from the other photos of a shoot by measured overlap.
 
-A candidate's score is the number of its verified matches (:func:`geofill.matching.match_pair`:
+A candidate's score is the number of its verified matches (:func:`geofill.match.match_pair`:
 SIFT, ratio + mutual tests, fundamental matrix fitted with MAGSAC++) whose target keypoint lies
 within :data:`NEAR_HOLE_PX` of the hole. Matches near the hole are what the fill's pose and depth
 fit lean on where it matters; matches elsewhere say the photos overlap, not that the source sees
@@ -19,8 +19,8 @@ import numpy as np
 
 from ..config import FillConfig
 from ..io import LoadedImage
-from ..matching import match_pair
-from ..views import prepare_views
+from ..match import match_pair
+from ..prepare import prepare_views
 
 #: Radius (px at a 1280-px long side, scaled with the working resolution) around the hole in which
 #: verified matches count towards a candidate's score.

@@ -19,11 +19,11 @@ from typing import Any
 
 import numpy as np
 
+from ..composite.inpaint import get_inpainter
+from ..composite.merge import merge_fill
 from ..config import FillConfig
 from ..errors import GeoFillError, InputError
-from ..inpaint import get_inpainter
 from ..io import LoadedImage, read_image, read_mask, validate_pair, write_image_atomic
-from ..merge import merge_fill
 from ..pipeline import fill
 from ..progress import Progress
 from .items import BatchItem

@@ -17,7 +17,7 @@ import numpy as np
 from ..camera import Intrinsics
 from ..config import DepthConfig
 from ..pose import PoseEstimate
-from ..triangulation import TriangulatedPoints
+from ..triangulate import TriangulatedPoints
 
 
 @dataclass

@@ -18,8 +18,8 @@ import numpy as np
 
 from ..config import GeometryConfig
 from ..errors import ReferenceUnusable
-from ..numerics import robust_linear_fit
-from ..triangulation import TriangulatedPoints
+from ..triangulate import TriangulatedPoints
+from ..utils.numerics import robust_linear_fit
 from . import DepthPrediction
 
 #: Fewer valid points than this cannot fix two parameters robustly.

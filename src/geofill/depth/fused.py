@@ -13,8 +13,8 @@ import cv2
 import numpy as np
 
 from ..errors import ReferenceUnusable
-from ..resolution import rescale_points
-from ..triangulation import TriangulatedPoints
+from ..triangulate import TriangulatedPoints
+from ..utils.resolution import rescale_points
 from . import DepthContext, DepthPrediction
 from .align import MIN_POINTS_AFFINE, fit_affine, sample_at
 from .onnx import predict_learned

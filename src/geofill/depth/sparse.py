@@ -7,7 +7,7 @@ import cv2
 import numpy as np
 
 from ..errors import ReferenceUnusable
-from ..resolution import rescale_points
+from ..utils.resolution import rescale_points
 from . import DepthContext, DepthPrediction
 from .completion import interpolate_edge_aware, to_uint8
 

@@ -42,8 +42,8 @@ import numpy as np
 from ..camera import Intrinsics
 from ..config import DepthConfig
 from ..errors import ReferenceUnusable
-from ..jit import njit_cached
 from ..render import project_source_points, source_pixel_grid
+from ..utils.jit import njit_cached
 from . import DepthContext, DepthPrediction
 from .completion import interpolate_edge_aware, to_uint8
 

@@ -17,7 +17,7 @@ import numpy as np
 
 from ..config import InpaintConfig, MatchingConfig
 from ..errors import GeoFillError
-from ..matching import match_pair
+from ..match import match_pair
 from ..refine import ColourGain, apply_colour_gain, fit_colour_gain
 
 #: Fewer homography inliers than this and the fit is not trusted.

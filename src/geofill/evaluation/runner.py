@@ -30,9 +30,9 @@ from typing import Any
 import cv2
 import numpy as np
 
+from ..composite.inpaint import inpaint_single
 from ..config import PRESETS, FillConfig, InpaintConfig
 from ..errors import ConfigError, InputError, MissingFileError
-from ..inpaint import inpaint_single
 from ..io import ExifCamera, read_image
 from .baselines import homography_fill_detailed, opencv_inpaint
 from .masks import (

@@ -10,6 +10,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..camera import Intrinsics, rotation_from_rotvec
+from ..utils.rotations import tangent_basis
 from .objective import (
     evaluate,
     feature_gauss_newton,
@@ -44,15 +45,6 @@ _MAX_EXTENSION = 64.0
 _CURVATURE_SAMPLES = 1 << 16
 
 
-def _tangent_basis(t: np.ndarray) -> np.ndarray:
-    """(3, 2) orthonormal basis of the plane orthogonal to ``t``."""
-    n = t / np.linalg.norm(t)
-    a = np.eye(3)[int(np.argmin(np.abs(n)))]
-    b1 = np.cross(n, a)
-    b1 /= np.linalg.norm(b1)
-    return np.stack([b1, np.cross(n, b1)], axis=1)
-
-
 class _Chart:
     """Local coordinates delta around ``p``: rotation vector (3, left-multiplied), translation on its
     sphere (2), scale, offset[, log focal]. Derivatives are taken at delta = 0."""
@@ -61,7 +53,7 @@ class _Chart:
         self.p = p
         self.n = 8 if with_focal else 7
         self.norm = float(np.linalg.norm(p.t))
-        self.B = _tangent_basis(p.t)
+        self.B = tangent_basis(p.t)
         self.R, self.t, self.scale, self.offset, self.log_focal = array_params(p)
         self.ef = math.exp(p.log_focal)
 

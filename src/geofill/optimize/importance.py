@@ -1,10 +1,10 @@
 """The paper's pixel importance weight map W = W_h * W_e (Sec. 3.2), computed on the target.
 
-W_h = exp(-d^2 / 2 sigma^2), d = Euclidean distance to the hole (:func:`geofill.distance.distance_to`), so the
-optimisation cares most about what borders the hole. W_e = sum_k e_k / sum_p e_k(p) over Canny edge
-maps e_k of the target blurred with different Gaussian kernels, each dilated: strong edges are where
-misalignment shows. Each edge map is normalised by its own sum, so W_e sums to the number of
-non-empty maps whatever the image size.
+W_h = exp(-d^2 / 2 sigma^2), d = Euclidean distance to the hole
+(:func:`geofill.utils.distance.distance_to`), so the optimisation cares most about what borders the
+hole. W_e = sum_k e_k / sum_p e_k(p) over Canny edge maps e_k of the target blurred with different
+Gaussian kernels, each dilated: strong edges are where misalignment shows. Each edge map is
+normalised by its own sum, so W_e sums to the number of non-empty maps whatever the image size.
 
 The hole must not create edges (its border is not scene structure, and its pixels are the object
 being removed or zeros), so the blur is a normalised convolution over known pixels only:
@@ -17,8 +17,8 @@ import cv2
 import numpy as np
 
 from ..config import OptimizeConfig
-from ..distance import distance_to
-from ..matching import to_gray_u8
+from ..match import to_gray_u8
+from ..utils.distance import distance_to
 
 
 def odd_kernel(size_px: float) -> int:

@@ -15,7 +15,7 @@ from array_api_compat import is_torch_array
 from ..camera import Intrinsics
 from ..config import OptimizeConfig
 from ..depth.align import sample_at
-from ..jit import njit_cached
+from ..utils.jit import njit_cached
 from .importance import importance_map
 from .params import Points
 

@@ -2,7 +2,7 @@
 
 ``telea``/``ns``: OpenCV's fast-marching and Navier-Stokes inpainting (no weights). ``patchmatch``:
 PatchMatch (Barnes et al. 2009) through PyPatchMatch, the ``patchmatch`` extra. ``lama``: LaMa
-through ONNX Runtime (:mod:`geofill.lama`), whose model is resolved like the depth networks'
+through ONNX Runtime (:mod:`geofill.composite.lama`), whose model is resolved like the depth networks'
 (:func:`geofill.weights.resolve_weights`: ``inpaint.lama_model`` -> ``$GEOFILL_LAMA_MODEL`` -> cache
 -> hub download only when ``inpaint.download`` is on and ``HF_HUB_OFFLINE`` unset); ``auto`` (default):
 LaMa when its model resolves, else Telea, and the report says which and why.
@@ -24,10 +24,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .config import InpaintConfig
-from .errors import InpaintModelError, MissingExtraError
-from .extras import available, require
-from .weights import ResolvedWeights, WeightsSpec, WeightsUnavailable, resolve_weights
+from ..config import InpaintConfig
+from ..errors import InpaintModelError, MissingExtraError
+from ..extras import available, require
+from ..weights import ResolvedWeights, WeightsSpec, WeightsUnavailable, resolve_weights
 
 _METHODS = {"telea": cv2.INPAINT_TELEA, "ns": cv2.INPAINT_NS}
 #: Carve/LaMa-ONNX (Apache-2.0, like LaMa): big-LaMa exported with a fixed 512 x 512 input, inputs

@@ -11,7 +11,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from .distance import distance_to
+from ..utils.distance import distance_to
 from .inpaint import Inpainter, mask_window
 
 

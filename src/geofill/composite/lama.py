@@ -17,7 +17,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .extras import require
+from ..extras import require
 
 #: Context around the hole's bounding box, as a fraction of its longer side (LaMa sees the hole's
 #: surroundings; more context costs resolution inside a fixed-size model).

@@ -11,7 +11,7 @@ by a robust estimator (OpenCV USAC MAGSAC++ by default). What every easy pair us
 more outliers), verified more strictly: a tighter inlier threshold.
 
 ``learned`` (only when ``matching.learned`` asks for it): an end-to-end keypoint + matcher ONNX
-graph (:mod:`geofill.matching.learned`), verified as strictly as ``loose``.
+graph (:mod:`geofill.match.learned`), verified as strictly as ``loose``.
 
 ``asift``: affine-simulated SIFT (ASIFT, OpenCV ``AffineFeature``): each image is re-detected under
 simulated camera tilts, which recovers the matches that a strong viewpoint change destroys for

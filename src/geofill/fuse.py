@@ -31,9 +31,9 @@ from typing import TYPE_CHECKING, Any
 import cv2
 import numpy as np
 
+from .composite.inpaint import mask_window
 from .config import FillConfig, FusionConfig
-from .inpaint import mask_window
-from .resolution import config_px
+from .utils.resolution import config_px
 
 if TYPE_CHECKING:
     from .pipeline import ReferenceArtifacts

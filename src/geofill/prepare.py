@@ -11,8 +11,8 @@ from .camera import Intrinsics
 from .config import FillConfig
 from .intrinsics import ExifLens, resolve_intrinsics
 from .io import as_unit_float
-from .matching import to_gray_u8
-from .resolution import px_scale, resize_long, resize_mask_any
+from .match import to_gray_u8
+from .utils.resolution import px_scale, resize_long, resize_mask_any
 
 
 @dataclass(frozen=True)
