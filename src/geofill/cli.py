@@ -127,7 +127,7 @@ def cmd_fill(args: argparse.Namespace) -> int:
         validate_pair,
         write_image_atomic,
     )
-    from .pipeline import fill
+    from .pipeline import fill_loaded
     from .preflight import check_resources
 
     cfg = _config_from_args(args)
@@ -163,15 +163,7 @@ def cmd_fill(args: argparse.Namespace) -> int:
     metadata = None if args.strip_metadata else target.metadata
     if metadata is not None and metadata.note:
         prog.say(f"note: {args.target}: {metadata.note}")
-    result = fill(
-        target.pixels,
-        mask,
-        [s.pixels for s in sources],
-        cfg,
-        target_exif=target.exif,
-        source_exifs=[s.exif for s in sources],
-        progress=prog,
-    )
+    result = fill_loaded(target, mask, sources, cfg, progress=prog)
     write_image_atomic(args.output, result.image, metadata=metadata, quality=args.quality)
     if args.debug_dir:
         write_debug(args.debug_dir, result, mask, cfg)

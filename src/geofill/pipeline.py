@@ -36,7 +36,7 @@ from .errors import ArrayFormatError, ReferenceUnusable
 from .focal import FocalEstimate, estimate_focal, shared_estimate, shared_focal_scale
 from .fuse import Fusion, fuse_references
 from .intrinsics import ExifLens
-from .io import as_rgb_uint8, validate_pair
+from .io import LoadedImage, as_rgb_uint8, validate_pair
 from .match import Matches, match_pair
 from .optimize.stage import Geometry, optimize_geometry
 from .pose import PoseEstimate, estimate_pose
@@ -343,6 +343,27 @@ def fill(
     if report.status == "single_image":
         prog.say("no reference could help: the hole was painted by single-image inpainting")
     return FillResult(image, report, refs, fusion, fusion.source_map(ctx.hole))
+
+
+def fill_loaded(
+    target: LoadedImage,
+    hole: np.ndarray,
+    sources: Sequence[LoadedImage],
+    config: FillConfig | None = None,
+    *,
+    progress: Progress | None = None,
+) -> FillResult:
+    """:func:`fill` on images read with :func:`geofill.io.read_image`, each with its EXIF lens: the
+    one call the CLI, the batch worker and the server worker make."""
+    return fill(
+        target.pixels,
+        hole,
+        [s.pixels for s in sources],
+        config,
+        target_exif=target.exif,
+        source_exifs=[s.exif for s in sources],
+        progress=progress,
+    )
 
 
 def shares_camera(ctx: FillContext, refs: list[ReferenceArtifacts]) -> bool:

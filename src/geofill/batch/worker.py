@@ -24,7 +24,7 @@ from ..composite.merge import merge_fill
 from ..config import FillConfig
 from ..errors import GeoFillError, InputError
 from ..io import LoadedImage, read_image, read_mask, validate_pair, write_image_atomic
-from ..pipeline import fill
+from ..pipeline import fill_loaded
 from ..progress import Progress
 from .items import BatchItem
 
@@ -58,19 +58,11 @@ class Filled:
 def fill_from_references(
     target: LoadedImage, hole: np.ndarray, references: Sequence[LoadedImage], cfg: FillConfig, prog: Progress
 ) -> Filled:
-    """The one place a batch calls :func:`geofill.fill` (with every reference of the item) and
+    """The one place a batch fills (:func:`geofill.pipeline.fill_loaded`, every reference of the item) and
     reads the hole coverage."""
     # A batch already runs one fill per core: references one after the other inside each.
     cfg = cfg.updated({"fusion.parallel": 1})
-    result = fill(
-        target.pixels,
-        hole,
-        [r.pixels for r in references],
-        cfg,
-        target_exif=target.exif,
-        source_exifs=[r.exif for r in references],
-        progress=prog,
-    )
+    result = fill_loaded(target, hole, references, cfg, progress=prog)
     r = result.report
     paths = tuple(ref.path for ref in references)
     return Filled(result.image, r.status, tuple(r.fallbacks), paths, 1.0 - float(r.painted_fraction), ())

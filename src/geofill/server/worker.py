@@ -5,7 +5,7 @@ at once, in the middle of any stage (a slow solver included), by terminating the
 that a fill's memory returns to the system when a worker is replaced. The processes are started
 once and reused, so a fill pays no interpreter start-up (see docs/results.md for the overhead).
 
-Every call to :func:`geofill.fill` and every read of its coverage is in :func:`run_fill`."""
+The one fill and every read of its coverage are in :func:`run_fill`."""
 
 from __future__ import annotations
 
@@ -21,6 +21,8 @@ from ..progress import Progress
 
 if TYPE_CHECKING:  # numpy is imported where used: the server process starts without it
     import numpy as np
+
+    from ..io import LoadedImage
 
 #: Stages a job goes through, in order, with the words the page shows (the pipeline's stage names,
 #: plus the worker's own reading and writing).
@@ -95,27 +97,12 @@ class StageProgress(Progress):
 
 
 def run_fill(
-    target: np.ndarray,
-    hole: np.ndarray,
-    sources: Sequence[np.ndarray],
-    config,
-    *,
-    target_exif=None,
-    source_exifs: Sequence | None = None,
-    progress: Progress,
+    target: LoadedImage, hole: np.ndarray, sources: Sequence[LoadedImage], config, progress: Progress
 ) -> FillOutcome:
-    """The server's one call of :func:`geofill.fill`, and its one read of the coverage."""
-    from ..pipeline import fill
+    """The server's one fill (:func:`geofill.pipeline.fill_loaded`), and its one read of the coverage."""
+    from ..pipeline import fill_loaded
 
-    result = fill(
-        target,
-        hole,
-        list(sources),
-        config,
-        target_exif=target_exif,
-        source_exifs=list(source_exifs) if source_exifs else None,
-        progress=progress,
-    )
+    result = fill_loaded(target, hole, sources, config, progress=progress)
     r = result.report
     return FillOutcome(result.image, result.source_map, r.to_dict(), r.status, tuple(r.fallbacks), ())
 
@@ -178,15 +165,7 @@ def execute(spec: JobSpec, send: Callable[[tuple], None]) -> dict[str, Any]:
             read_image(folder / source_file(k), max_pixels=cfg.max_pixels, min_side=cfg.min_side_px)
             for k in range(1, spec.n_sources + 1)
         ]
-    outcome = run_fill(
-        target.pixels,
-        hole,
-        [s.pixels for s in sources],
-        cfg,
-        target_exif=target.exif,
-        source_exifs=[s.exif for s in sources],
-        progress=prog,
-    )
+    outcome = run_fill(target, hole, sources, cfg, prog)
     with prog.stage("write result"):
         write_image_atomic(folder / RESULT_FILE, outcome.image)
         # RGBA, which write_image_atomic (RGB outputs) does not write; the job is not done before
