@@ -238,7 +238,7 @@ def test_unreadable_file(tmp_path, monkeypatch):
         def denied(*args, **kwargs):
             raise PermissionError(13, "Permission denied")
 
-        monkeypatch.setattr(io, "open", denied, raising=False)
+        monkeypatch.setattr(io.images, "open", denied, raising=False)
     with pytest.raises(UnreadableFileError, match=r"a\.png: cannot open file.*Permission denied"):
         io.read_image(path)
 

@@ -1,0 +1,43 @@
+"""Reading and validating the user's inputs (target, source, mask, optional depth map) and writing
+outputs atomically.
+
+Images come back as HxWx3 uint8 RGB with the EXIF orientation applied, masks as HxW bool (True =
+hole). Every problem is a named exception of :mod:`geofill.errors` whose one-line message starts
+with the file (or array) it is about.
+
+- :mod:`~geofill.io.images`: image and mask files, their EXIF lens tags and carried metadata.
+- :mod:`~geofill.io.arrays`: arrays at the API edge and the checks of one fill's inputs.
+- :mod:`~geofill.io.output`: output checks made before any work, and the atomic image write.
+- :mod:`~geofill.io.depth_files`: user-supplied depth maps.
+"""
+
+from .arrays import MASK_THRESHOLD, as_rgb_uint8, as_unit_float, validate_pair
+from .depth_files import read_depth_file
+from .images import (
+    IMAGE_SUFFIXES,
+    INPUT_FORMATS,
+    ExifCamera,
+    ImageMetadata,
+    LoadedImage,
+    read_image,
+    read_mask,
+)
+from .output import check_output_dir, check_output_path, write_image_atomic
+
+__all__ = [
+    "IMAGE_SUFFIXES",
+    "INPUT_FORMATS",
+    "MASK_THRESHOLD",
+    "ExifCamera",
+    "ImageMetadata",
+    "LoadedImage",
+    "as_rgb_uint8",
+    "as_unit_float",
+    "check_output_dir",
+    "check_output_path",
+    "read_depth_file",
+    "read_image",
+    "read_mask",
+    "validate_pair",
+    "write_image_atomic",
+]

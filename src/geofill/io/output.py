@@ -1,0 +1,130 @@
+"""Writing outputs: the checks made before any work (:func:`check_output_path`,
+:func:`check_output_dir`) and the atomic write of an image (:func:`write_image_atomic`)."""
+
+from __future__ import annotations
+
+import os
+import stat
+import uuid
+from pathlib import Path
+
+import numpy as np
+from PIL import Image
+
+from ..errors import ConfigError, OutputError
+from .arrays import as_rgb_uint8
+from .files import one_line, stat_mode
+from .images import ImageMetadata
+
+_WRITE_FORMATS: dict[str, tuple[str, dict]] = {
+    # zlib level 1: on a 3840x2160 fill 0.39 s against 0.61 s at level 3 and 1.86 s at Pillow's
+    # default 6 (1280x720: 0.05 / 0.07 / 0.26 s), for 9 % (23 %) more bytes than level 3 (6).
+    ".png": ("PNG", {"compress_level": 1}),
+    ".jpg": ("JPEG", {"quality": 95}),
+    ".jpeg": ("JPEG", {"quality": 95}),
+    ".webp": ("WEBP", {"quality": 95}),
+    ".tif": ("TIFF", {"compression": "tiff_adobe_deflate"}),
+    ".tiff": ("TIFF", {"compression": "tiff_adobe_deflate"}),
+}
+
+
+def check_output_path(path: str | os.PathLike) -> None:
+    """Raise OutputError now, before any work, if ``path`` cannot be written: unsupported extension
+    (png, jpg, jpeg, webp, tif, tiff), missing or non-writable folder, a directory in its place, or
+    a name too long for the folder's file system once the temporary-file affixes are added."""
+    p = Path(path)
+    if p.suffix.lower() not in _WRITE_FORMATS:
+        known = ", ".join(ext.lstrip(".") for ext in _WRITE_FORMATS)
+        raise OutputError(f"{p}: unsupported output extension '{p.suffix}' (use one of {known})")
+    _check_writable_folder(p, p.parent, "output folder")
+    _check_name_length(p, _temp_path(p).name)
+    if stat_mode(p, OutputError) is not None and stat.S_ISDIR(stat_mode(p, OutputError)):
+        raise OutputError(f"{p}: is a directory")
+
+
+def check_output_dir(path: str | os.PathLike) -> None:
+    """Raise OutputError now, before any work, if ``path`` cannot be a folder geofill writes files
+    into (``--debug-dir``): an existing file, a name too long, or a nearest existing parent that is
+    not a writable folder."""
+    p = Path(path)
+    mode = stat_mode(p, OutputError)
+    if mode is not None:
+        if not stat.S_ISDIR(mode):
+            raise OutputError(f"{p}: exists and is not a directory")
+        _check_writable_folder(p, p, "folder")
+        return
+    parent = p.parent
+    while stat_mode(parent, OutputError) is None and parent != parent.parent:
+        parent = parent.parent
+    _check_writable_folder(p, parent, "parent folder")
+    for part in p.parts:
+        _check_name_length(p, part)
+
+
+def _check_writable_folder(p: Path, folder: Path, what: str) -> None:
+    mode = stat_mode(folder, OutputError)
+    if mode is None or not stat.S_ISDIR(mode):
+        raise OutputError(f"{p}: {what} {folder} does not exist")
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise OutputError(f"{p}: {what} {folder} is not writable")
+
+
+def _check_name_length(p: Path, name: str) -> None:
+    folder = next((f for f in p.parents if stat_mode(f, OutputError) is not None), Path("."))
+    try:
+        name_max = os.pathconf(folder, "PC_NAME_MAX")
+    except (OSError, ValueError):
+        name_max = 255  # the limit of every common file system
+    if len(os.fsencode(name)) > name_max:
+        raise OutputError(
+            f"{p}: file name too long ({len(os.fsencode(p.name))} bytes; the limit here is "
+            f"{name_max - (len(os.fsencode(name)) - len(os.fsencode(p.name)))} bytes)"
+        )
+
+
+def _temp_path(p: Path) -> Path:
+    # A hidden name unique to this call; short affixes leave the longest possible output name.
+    return p.with_name(f".{p.name}.{uuid.uuid4().hex[:12]}.tmp")
+
+
+def write_image_atomic(
+    path: str | os.PathLike,
+    rgb: np.ndarray,
+    *,
+    metadata: ImageMetadata | None = None,
+    quality: int | None = None,
+) -> None:
+    """Write an image so that ``path`` holds either its old content or the complete new image.
+
+    The image (any array :func:`as_rgb_uint8` accepts) is encoded into a temporary file in the same
+    folder, then moved over ``path`` with ``os.replace`` (atomic within a file system); the format
+    follows the extension. ``quality`` (1-100, JPEG and WebP only; default 95) sets the lossy
+    encoders' quality; ``metadata`` (EXIF, ICC profile) is embedded. Nothing is left behind on
+    failure or on an exception raised mid-write (a SIGTERM turned into one by the CLI).
+    Raises OutputError, ConfigError for a ``quality`` the format does not take (and
+    ArrayFormatError for an unsupported array)."""
+    check_output_path(path)
+    p = Path(path)
+    pil_format, options = _WRITE_FORMATS[p.suffix.lower()]
+    if quality is not None:
+        if "quality" not in options:
+            raise ConfigError(f"{p}: --quality applies to JPEG and WebP output only, not {pil_format}")
+        if not 1 <= quality <= 100:
+            raise ConfigError(f"{p}: quality must be in [1, 100], got {quality}")
+        options = options | {"quality": quality}
+    if metadata is not None:
+        options = options | {
+            k: v for k, v in (("exif", metadata.exif), ("icc_profile", metadata.icc_profile)) if v
+        }
+    image = Image.fromarray(as_rgb_uint8(rgb, name=str(p)))
+    # "xb" refuses to reuse an existing file and, unlike tempfile.mkstemp (mode 0600), creates it
+    # with the permissions the umask gives a normal file.
+    tmp = _temp_path(p)
+    try:
+        with open(tmp, "xb") as fh:
+            image.save(fh, format=pil_format, **options)
+        os.replace(tmp, p)
+    except OSError as exc:
+        raise OutputError(f"{p}: cannot write image ({one_line(exc)})") from exc
+    finally:
+        tmp.unlink(missing_ok=True)
