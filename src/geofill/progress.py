@@ -1,7 +1,14 @@
-"""Per-stage timing, one-line progress messages on stderr, and the fill's time budget."""
+"""Per-stage timing, one-line progress messages, and the fill's time budget.
+
+Every message is a record of the ``geofill`` :mod:`logging` logger at INFO level, whether or not it
+is printed, so that a program embedding geofill shows, filters or silences them with the standard
+logging machinery (they are invisible by default: a logger without handlers shows warnings and
+above only). A progress that is not quiet also prints each message to its stream: that is the
+command line's output."""
 
 from __future__ import annotations
 
+import logging
 import sys
 import threading
 import time
@@ -12,9 +19,13 @@ from typing import TextIO
 
 from .errors import TimeBudgetError
 
+#: The package logger every progress message goes through.
+LOGGER = logging.getLogger("geofill")
+
 
 class Progress:
-    """Times named stages; prints ``geofill: <stage> ... <s> s  <note>`` unless quiet.
+    """Times named stages; logs ``<stage> ... <s> s  <note>`` and prints it (after ``geofill: ``)
+    unless quiet.
 
     ``time_budget_s`` bounds the whole run from this object's creation: every stage runs inside
     :meth:`stage`, which raises :class:`TimeBudgetError` when a stage would start past the deadline
@@ -42,8 +53,11 @@ class Progress:
         return sub
 
     def say(self, message: str) -> None:
+        """Log ``message`` (with this progress's prefix) and print it unless quiet."""
+        text = f"{self.prefix}{message}"
+        LOGGER.info(text)
         if not self.quiet:
-            print(f"geofill: {self.prefix}{message}", file=self.stream, flush=True)
+            print(f"geofill: {text}", file=self.stream, flush=True)
 
     def _add(self, name: str, seconds: float) -> None:
         with self._lock:

@@ -87,6 +87,7 @@ class StageProgress(Progress):
         self._send = send
 
     def say(self, message: str) -> None:
+        super().say(message)  # logged only: this progress is quiet
         self._send(("note", message))
 
     @contextmanager
