@@ -3,14 +3,16 @@ one-line message, a non-zero exit status and nothing written."""
 
 from __future__ import annotations
 
+import argparse
 import json
+import typing
 
 import cv2
 import numpy as np
 import pytest
 
-from geofill.cli import main
-from geofill.config import FillConfig
+from geofill.cli import build_parser, main
+from geofill.config import DepthConfig, FillConfig, choices
 from geofill.synthetic import make_pair
 
 
@@ -134,6 +136,36 @@ def test_config_dump_roundtrip_and_overrides(tmp_path, capsys):
     path.write_text(text)
     assert main(["config", "--config", str(path)]) == 0
     assert FillConfig.from_dict(json.loads(capsys.readouterr().out)) == cfg
+
+
+def _option(command: str, flag: str, parser: argparse.ArgumentParser | None = None) -> argparse.Action:
+    parser = parser or build_parser()
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices[command]
+    return next(a for a in sub._actions if flag in a.option_strings)
+
+
+@pytest.mark.parametrize("command", ["fill", "batch", "config"])
+def test_flag_choices_are_the_config_literals(command):
+    hints = typing.get_type_hints(DepthConfig)
+    assert _option(command, "--depth").choices == typing.get_args(hints["backend"])
+    assert _option(command, "--depth-kind").choices == typing.get_args(hints["file_kind"])
+
+
+def test_a_value_added_to_the_literal_is_offered(monkeypatch):
+    monkeypatch.setitem(DepthConfig.__annotations__, "backend", 'Literal["auto", "stereo", "lidar"]')
+    assert choices(DepthConfig, "backend") == ("auto", "stereo", "lidar")
+    assert _option("fill", "--depth").choices == ("auto", "stereo", "lidar")
+    with pytest.raises(TypeError, match=r"DepthConfig\.file_scale is not a Literal field"):
+        choices(DepthConfig, "file_scale")
+
+
+def test_a_value_outside_the_literal_is_refused_naming_the_choices(capsys):
+    with pytest.raises(SystemExit) as info:
+        main(["config", "--depth", "lidar"])
+    err = capsys.readouterr().err.strip()
+    assert info.value.code == 2 and len(err.splitlines()) == 1
+    assert err.startswith("geofill: error: config: argument --depth: invalid choice: 'lidar' (choose from ")
+    assert all(repr(value) in err for value in choices(DepthConfig, "backend"))
 
 
 def test_demo_writes_side_by_side_and_numbers(tmp_path, capsys):

@@ -89,6 +89,31 @@ def test_defaults_are_inside_their_own_bounds_and_every_number_is_bounded():
     assert unbounded == []
 
 
+def test_every_config_field_has_a_description_as_data():
+    """Each leaf's description is its ``metadata["help"]``; each section's is its docstring."""
+    missing = []
+    for top in dataclasses.fields(FillConfig):
+        section = typing.get_type_hints(FillConfig)[top.name]
+        if dataclasses.is_dataclass(section):
+            assert section.__doc__.strip(), section
+            leaves = {f"{top.name}.{f.name}": f for f in dataclasses.fields(section)}
+        else:
+            leaves = {top.name: top}
+        for key, f in leaves.items():
+            text = f.metadata.get("help")
+            if not (isinstance(text, str) and text.strip() and "\n" not in text):
+                missing.append(key)
+    assert missing == []
+
+
+def test_list_defaults_are_copied_for_each_config():
+    a, b = OptimizeConfig(), OptimizeConfig()
+    assert a.edge_blur_kernels == b.edge_blur_kernels == [3, 7, 15, 31]
+    a.edge_blur_kernels.append(63)
+    assert b.edge_blur_kernels == OptimizeConfig().edge_blur_kernels == [3, 7, 15, 31]
+    assert FillConfig().optimize.fast_iterations == [30, 20, 12, 4]
+
+
 def test_range_and_length_describe_themselves():
     assert str(Range(0, 1, lo_open=True)) == "(0, 1]"
     with pytest.raises(ConfigError, match=r"x: 3 values given, allowed 4 to 4"):

@@ -6,11 +6,18 @@ expiry are deterministic and no process is started."""
 
 from __future__ import annotations
 
+import compileall
+import dataclasses
 import io
 import json
 import os
+import shutil
 import signal
+import subprocess
+import sys
 import time
+import typing
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -23,7 +30,7 @@ from PIL import Image
 
 from geofill.server.app import create_app
 from geofill.server.jobs import ServerSettings
-from geofill.server.schema import config_fields, field_descriptions, flatten
+from geofill.server.schema import config_fields, flatten
 from geofill.synthetic import make_pair
 
 W, H = 320, 240
@@ -335,16 +342,53 @@ def test_page_and_its_files_are_served_without_external_references(idle):
     assert "https://" not in page.text and "http://" not in page.text
 
 
-def test_field_descriptions_read_the_config_comments():
-    from geofill.config import MatchingConfig, OptimizeConfig
+def _help(section: type, name: str) -> str:
+    return next(f for f in dataclasses.fields(section) if f.name == name).metadata["help"]
 
-    docs = field_descriptions(MatchingConfig)
-    assert docs["ratio"] == "Lowe's ratio test threshold."
-    assert docs["max_features"].startswith("SIFT keypoints per image (strongest kept); 0 = no limit.")
-    # one comment above consecutive fields describes each of them
-    opt = field_descriptions(OptimizeConfig)
-    assert opt["lambda_photo"] == opt["lambda_negd"] and opt["lambda_negd"].startswith("Weights of L_photo")
-    assert opt["enabled"] == ""
+
+def test_page_fields_and_openapi_show_each_fields_metadata(idle):
+    """Every description the page and the OpenAPI schema show is the field's ``metadata["help"]``,
+    and a choice field offers its Literal's values."""
+    from geofill.config import DepthConfig, FillConfig, MatchingConfig, OptimizeConfig, choices
+
+    client, _, _ = idle
+    fields = {f["key"]: f for f in client.get("/api/v1/config/fields").json()["fields"]}
+    schemas = client.get("/openapi.json").json()["components"]["schemas"]
+    ratio = schemas["MatchingConfig"]["properties"]["ratio"]["description"]
+    assert ratio == _help(MatchingConfig, "ratio") == "Lowe's ratio test threshold."
+    hints = typing.get_type_hints(FillConfig)
+    for key, row in fields.items():
+        section, _, name = key.rpartition(".")
+        cls = hints[section] if section else FillConfig
+        assert row["description"] == _help(cls, name) != "", key
+        assert schemas[cls.__name__]["properties"][name]["description"] == row["description"], key
+    assert schemas["DepthConfig"]["description"] == DepthConfig.__doc__
+    # one text shared by the fields it describes together
+    weights = {fields[f"optimize.lambda_{k}"]["description"] for k in ("photo", "feat", "negd")}
+    assert weights == {_help(OptimizeConfig, "lambda_feat")}
+    assert fields["depth.backend"]["choices"] == list(choices(DepthConfig, "backend"))
+    assert fields["depth.file_kind"]["choices"] == list(choices(DepthConfig, "file_kind"))
+
+
+def test_descriptions_need_no_source_files(tmp_path):
+    """An install with compiled modules only (no config.py to read) still describes every field."""
+    import geofill
+
+    copy = tmp_path / "geofill"
+    shutil.copytree(Path(geofill.__file__).parent, copy, ignore=shutil.ignore_patterns("__pycache__"))
+    assert compileall.compile_dir(copy, quiet=1, legacy=True)
+    for source in copy.rglob("*.py"):
+        source.unlink()
+    code = (
+        "import geofill; from geofill.server.schema import config_fields, config_model\n"
+        "assert all(f.description for f in config_fields())\n"
+        "props = config_model().model_json_schema()['$defs']['MatchingConfig']['properties']\n"
+        "print(geofill.__file__); print(props['ratio']['description'])"
+    )
+    env = {**os.environ, "PYTHONPATH": str(tmp_path)}
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.splitlines() == [str(copy / "__init__.pyc"), "Lowe's ratio test threshold."]
 
 
 def test_flatten_accepts_nested_and_dotted_keys():

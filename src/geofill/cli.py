@@ -14,7 +14,7 @@ import sys
 import typing
 from pathlib import Path
 
-from .config import PRESETS, FillConfig, parse_overrides
+from .config import PRESETS, DepthConfig, FillConfig, choices, parse_overrides
 from .errors import EXIT_FELL_BACK, EXIT_ITEMS_FAILED, ConfigError, GeoFillError
 from .progress import Progress
 
@@ -75,16 +75,14 @@ def _add_config_flags(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--depth",
-        choices=["auto", "stereo", "fused", "onnx", "sparse", "file"],
+        choices=choices(DepthConfig, "backend"),
         help="depth backend (default: auto = fused when learned-depth weights resolve, else stereo)",
     )
     p.add_argument(
         "--depth-model", metavar="PATH", help="ONNX file of the learned depth model (depth.model) to use"
     )
     p.add_argument("--depth-file", help="depth/disparity map of the SOURCE (.npy, 16-bit PNG, TIFF, EXR)")
-    p.add_argument(
-        "--depth-kind", choices=["depth", "inverse_depth", "disparity"], help="what --depth-file holds"
-    )
+    p.add_argument("--depth-kind", choices=choices(DepthConfig, "file_kind"), help="what --depth-file holds")
     p.add_argument(
         "--depth-scale", type=float, help="multiply --depth-file values by this (e.g. 0.001 for mm)"
     )

@@ -1,10 +1,25 @@
 """One typed configuration object with the paper's defaults, dumpable/loadable as JSON.
 
-Every stage reads only its own section. Unknown keys in a JSON file are errors (a typo must not
-silently fall back to a default). Every value is checked when a :class:`FillConfig` is built
-(from JSON, ``--set``, a preset or the Python API): its type, finiteness for every float, and the
-bounds its field declares with ``Annotated[..., Range(...)]`` / ``Length(...)``, so a bad value is
-one :class:`ConfigError` naming the key and the allowed range, never a crash deep in OpenCV."""
+Sections follow the pipeline, but some are read by more than one stage. Which stage reads what
+(:func:`geofill.pipeline.run_reference` hands each stage its part):
+
+- prepare: ``intrinsics``, ``working_max_side`` and ``matching.ransac_threshold_px`` (the inlier
+  threshold the focal stage uses);
+- match: ``matching``; focal (one pair or shared by all): ``intrinsics``;
+- pose: ``geometry`` and ``matching``'s robust-fit keys; triangulate: ``geometry``;
+- depth: ``depth`` and ``geometry``'s depth fit (``depth_fit``, ``fit_space``);
+- optimize: ``optimize``; render: ``render`` and ``refine.band_px`` (its margin); refine: ``refine``;
+- fuse: ``fusion`` and ``refine.band_px`` (its known ring); composite: ``inpaint`` and
+  ``refine.feather_px``;
+- the reference runner: ``fusion.parallel``; the input checks: the top-level limits; the progress:
+  ``time_budget_s``; the batch's reference picker: ``matching`` and ``geometry.min_inliers``.
+
+Unknown keys in a JSON file are errors (a typo must not silently fall back to a default). Every
+value is checked when a :class:`FillConfig` is built (from JSON, ``--set``, a preset or the Python
+API): its type, finiteness for every float, and the bounds its field declares with
+``Annotated[..., Range(...)]`` / ``Length(...)``, so a bad value is one :class:`ConfigError` naming
+the key and the allowed range, never a crash deep in OpenCV. Each field's description is data, its
+``metadata["help"]`` (:func:`setting`): the web page and the OpenAPI schema show it."""
 
 from __future__ import annotations
 
@@ -66,143 +81,222 @@ class Length:
             )
 
 
+def setting(default: Any, help: str) -> Any:
+    """A config field: its default and its description, kept as ``metadata["help"]`` (the web page,
+    the OpenAPI schema and the tests read it there). A list default is copied for each instance."""
+    if isinstance(default, list):
+        return field(default_factory=lambda: list(default), metadata={"help": help})
+    return field(default=default, metadata={"help": help})
+
+
+def choices(section: type, name: str) -> tuple[Any, ...]:
+    """The values the ``Literal`` field ``name`` of ``section`` allows, e.g. ``choices(DepthConfig,
+    "backend")``: the CLI offers these, so a value added to the type is offered there too."""
+    tp = typing.get_type_hints(section)[name]
+    if typing.get_origin(tp) is not Literal:
+        raise TypeError(f"{section.__name__}.{name} is not a Literal field: {tp}")
+    return typing.get_args(tp)
+
+
+_FOCAL_SEARCH_GRID = (
+    "Focal scales (relative to the prior) searched: log grid from ``search_min_scale`` to "
+    "``search_max_scale`` with ``search_steps`` points, then refined around the best."
+)
+_FOCAL_MAX_UNCERTAINTY = (
+    "The estimate is used only if its uncertainty (1-sigma of log focal) is at most this and at most "
+    "``max_uncertainty_ratio`` times the prior's; otherwise the focal is unobservable from this pair (e.g. "
+    "parallel optical axes: stereo, pure sideways or forward motion; few matches) and the prior is kept, "
+    "with the reason in the report. 0.25 turned away the two estimates that were 32 % off or unverifiable "
+    "on the DEV pairs (+-44 %, +-32 %)."
+)
+
+
 @dataclass
 class IntrinsicsConfig:
     """Where each image's pinhole intrinsics come from (see :mod:`geofill.intrinsics`)."""
 
-    #: Explicit focal length (px of the input image) for both images; wins over EXIF and defaults.
-    focal_px: Annotated[float, Range(0, 1e6, lo_open=True)] | None = None
-    #: Full calibration [fx, fy, cx, cy] (px of the input target image); wins over everything.
-    target: Annotated[list[Annotated[float, Range(0, 1e6, lo_open=True)]], Length(4, 4)] | None = None
-    #: Full calibration [fx, fy, cx, cy] (px of the input source image); wins over everything.
-    source: Annotated[list[Annotated[float, Range(0, 1e6, lo_open=True)]], Length(4, 4)] | None = None
-    #: Use the EXIF focal length when present: FocalLengthIn35mmFilm, else FocalLength with the
-    #: focal-plane resolution (see :mod:`geofill.intrinsics`).
-    use_exif: bool = True
-    #: Focal-length estimation from the pair, after matching and before the pose (see
-    #: :mod:`geofill.focal`): ``none`` keeps the prior (flag, EXIF or default: the paper's setting);
-    #: ``search`` profiles the robust Sampson cost of the best essential matrix over a focal scale
-    #: (default: best on the GT-pose pairs and synthetic scenes, benchmarks/focal_bench.py);
-    #: ``bougnoux`` is the closed form from F; ``auto`` combines the two. Focal lengths given by a
-    #: flag are never estimated; an EXIF focal is a prior the estimate may move within its uncertainty.
-    estimate: Literal["none", "search", "bougnoux", "auto"] = "search"
-    #: With several references: estimate one focal for the target and every reference together
-    #: (from all pairs' matches) when they come from the same camera. ``auto``: when every image's
-    #: EXIF names the same body, lens and focal length; ``yes``: always (the user says so);
-    #: ``no``: each pair on its own.
-    shared_camera: Literal["auto", "yes", "no"] = "auto"
-    #: Prior 1-sigma of log(focal) for the default focal guess (1.0: a factor of e either way).
-    prior_sigma_default: Annotated[float, Range(0, 10, lo_open=True)] = 1.0
-    #: Prior 1-sigma of log(focal) for an EXIF focal (phones' EXIF is usually right to a few %).
-    #: Below ``model_error``, so by default the pair cannot move an EXIF focal: the estimate checks
-    #: it (report) and takes over only where EXIF is absent, or trusted less than this.
-    prior_sigma_exif: Annotated[float, Range(0, 10, lo_open=True)] = 0.05
-    #: Focal scales (relative to the prior) searched: log grid from ``search_min_scale`` to
-    #: ``search_max_scale`` with ``search_steps`` points, then refined around the best.
-    search_min_scale: Annotated[float, Range(0.01, 1)] = 0.33
-    search_max_scale: Annotated[float, Range(1, 100)] = 3.0
-    search_steps: Annotated[int, Range(2, 200)] = 13
-    #: The search reads its Sampson cost as a Gaussian likelihood of the focal with the information
-    #: divided by this: SIFT positions carry correlated errors (localisation bias), so the formal
-    #: likelihood is overconfident (25: the standard deviation x5).
-    search_variance_inflation: Annotated[float, Range(1, 1e6)] = 25.0
-    #: Relative focal error (1 sigma) the pair can never beat: what lens distortion, an off-centre
-    #: principal point or a rolling shutter leave. Estimates on the GT pairs were 0-16 % off where
-    #: more than 70 matches (benchmarks/focal_bench.py).
-    model_error: Annotated[float, Range(0, 1)] = 0.1
-    #: Matches used by the search at most (evenly subsampled, for speed).
-    search_max_matches: Annotated[int, Range(8, 100_000)] = 2000
-    #: The estimate is used only if its uncertainty (1-sigma of log focal) is at most this and at
-    #: most ``max_uncertainty_ratio`` times the prior's; otherwise the focal is unobservable from
-    #: this pair (e.g. parallel optical axes: stereo, pure sideways or forward motion; few matches)
-    #: and the prior is kept, with the reason in the report. 0.25 turned away the two estimates
-    #: that were 32 % off or unverifiable on the DEV pairs (+-44 %, +-32 %).
-    max_uncertainty: Annotated[float, Range(0, 10, lo_open=True)] = 0.25
-    max_uncertainty_ratio: Annotated[float, Range(0, 10, lo_open=True)] = 0.7
-    #: A pair whose best focal is further than this many standard deviations from the prior
-    #: contradicts it: the prior is kept (an EXIF focal wins over an estimate it rules out).
-    max_prior_conflict: Annotated[float, Range(0, 100, lo_open=True)] = 3.0
-    #: ``bougnoux``: bootstrap resamples of the matches that measure the formula's sensitivity.
-    bougnoux_resamples: Annotated[int, Range(1, 1000)] = 32
+    focal_px: Annotated[float, Range(0, 1e6, lo_open=True)] | None = setting(
+        None,
+        "Explicit focal length (px of the input image) for both images; wins over EXIF and defaults.",
+    )
+    target: Annotated[list[Annotated[float, Range(0, 1e6, lo_open=True)]], Length(4, 4)] | None = setting(
+        None,
+        "Full calibration [fx, fy, cx, cy] (px of the input target image); wins over everything.",
+    )
+    source: Annotated[list[Annotated[float, Range(0, 1e6, lo_open=True)]], Length(4, 4)] | None = setting(
+        None,
+        "Full calibration [fx, fy, cx, cy] (px of the input source image); wins over everything.",
+    )
+    use_exif: bool = setting(
+        True,
+        "Use the EXIF focal length when present: FocalLengthIn35mmFilm, else FocalLength with the "
+        "focal-plane resolution (see :mod:`geofill.intrinsics`).",
+    )
+    estimate: Literal["none", "search", "bougnoux", "auto"] = setting(
+        "search",
+        "Focal-length estimation from the pair, after matching and before the pose (see "
+        ":mod:`geofill.focal`): ``none`` keeps the prior (flag, EXIF or default: the paper's setting); "
+        "``search`` profiles the robust Sampson cost of the best essential matrix over a focal scale "
+        "(default: best on the GT-pose pairs and synthetic scenes, benchmarks/focal_bench.py); ``bougnoux`` "
+        "is the closed form from F; ``auto`` combines the two. Focal lengths given by a flag are never "
+        "estimated; an EXIF focal is a prior the estimate may move within its uncertainty.",
+    )
+    shared_camera: Literal["auto", "yes", "no"] = setting(
+        "auto",
+        "With several references: estimate one focal for the target and every reference together (from all "
+        "pairs' matches) when they come from the same camera. ``auto``: when every image's EXIF names the "
+        "same body, lens and focal length; ``yes``: always (the user says so); ``no``: each pair on its own.",
+    )
+    prior_sigma_default: Annotated[float, Range(0, 10, lo_open=True)] = setting(
+        1.0,
+        "Prior 1-sigma of log(focal) for the default focal guess (1.0: a factor of e either way).",
+    )
+    prior_sigma_exif: Annotated[float, Range(0, 10, lo_open=True)] = setting(
+        0.05,
+        "Prior 1-sigma of log(focal) for an EXIF focal (phones' EXIF is usually right to a few %). Below "
+        "``model_error``, so by default the pair cannot move an EXIF focal: the estimate checks it (report) "
+        "and takes over only where EXIF is absent, or trusted less than this.",
+    )
+    search_min_scale: Annotated[float, Range(0.01, 1)] = setting(0.33, _FOCAL_SEARCH_GRID)
+    search_max_scale: Annotated[float, Range(1, 100)] = setting(3.0, _FOCAL_SEARCH_GRID)
+    search_steps: Annotated[int, Range(2, 200)] = setting(13, _FOCAL_SEARCH_GRID)
+    search_variance_inflation: Annotated[float, Range(1, 1e6)] = setting(
+        25.0,
+        "The search reads its Sampson cost as a Gaussian likelihood of the focal with the information "
+        "divided by this: SIFT positions carry correlated errors (localisation bias), so the formal "
+        "likelihood is overconfident (25: the standard deviation x5).",
+    )
+    model_error: Annotated[float, Range(0, 1)] = setting(
+        0.1,
+        "Relative focal error (1 sigma) the pair can never beat: what lens distortion, an off-centre "
+        "principal point or a rolling shutter leave. Estimates on the GT pairs were 0-16 % off where more "
+        "than 70 matches (benchmarks/focal_bench.py).",
+    )
+    search_max_matches: Annotated[int, Range(8, 100_000)] = setting(
+        2000,
+        "Matches used by the search at most (evenly subsampled, for speed).",
+    )
+    max_uncertainty: Annotated[float, Range(0, 10, lo_open=True)] = setting(0.25, _FOCAL_MAX_UNCERTAINTY)
+    max_uncertainty_ratio: Annotated[float, Range(0, 10, lo_open=True)] = setting(0.7, _FOCAL_MAX_UNCERTAINTY)
+    max_prior_conflict: Annotated[float, Range(0, 100, lo_open=True)] = setting(
+        3.0,
+        "A pair whose best focal is further than this many standard deviations from the prior contradicts "
+        "it: the prior is kept (an EXIF focal wins over an estimate it rules out).",
+    )
+    bougnoux_resamples: Annotated[int, Range(1, 1000)] = setting(
+        32,
+        "``bougnoux``: bootstrap resamples of the matches that measure the formula's sensitivity.",
+    )
+
+
+_RANSAC = (
+    "Inlier threshold of every robust fit on the matches (F, E, the rotation-only homography at twice it, "
+    "the focal search): px at a 1280-px long side, scaled with the working image but never below half of it "
+    "(:meth:`ransac_px`)."
+)
+_HOLE_SUPPORT = (
+    "... and this fraction of the hole within ``hole_support_radius_px`` (px at a 1280-px long side, "
+    "scaled) of an inlier; otherwise the ladder climbs."
+)
+_LOOSE_RUNG = "``loose`` rung: SIFT keypoints per image and ratio-test threshold (no mutual check)."
+_ASIFT_RUNG = (
+    "``asift`` rung: tilts sqrt(2)^k for k < ``asift_max_tilt`` (4: up to 2.8, about 70 deg of obliquity), "
+    "detected on the working image downsized to a long side of at most ``asift_max_side`` px (ASIFT's cost "
+    "grows with the area times the number of views), ``asift_features_per_view`` SIFT keypoints per "
+    "simulated view, the ``asift_max_features`` strongest of all views kept per image (the matching cost "
+    "grows with their product), ratio threshold."
+)
+_GUIDED_RUNG = (
+    "``guided`` rung: half-width (px at the working resolution) of the epipolar band a match must fall in, "
+    "and the ratio threshold between the two best candidates inside it. Not looser than plain SIFT's: a "
+    "wrong match on its epipolar line passes F verification by construction (0.9 gave 142 verified matches "
+    "on a rendered 33-degree orbit, 77 % right; 0.8: 93, 96 %)."
+)
 
 
 @dataclass
 class MatchingConfig:
     """SIFT matching between target and source (hole excluded)."""
 
-    #: SIFT keypoints per image (strongest kept); 0 = no limit. 4000 gave the same pose accuracy
-    #: as 8000 on the GT-pose pairs (median 0.18 deg / 0.95 deg) at half the matching time.
-    max_features: Annotated[int, Range(0, 1_000_000)] = 4000
-    #: The ``sift`` rung detects on the working images downsized to this long side (px; 0 = the
-    #: working size itself); positions are mapped back to working pixels.
-    sift_max_side: Annotated[int, Range(0, 16384)] = 0
-    #: Lowe's ratio test threshold.
-    ratio: Annotated[float, Range(0.0, 1.0)] = 0.8
-    #: Keep only matches that are each other's nearest neighbour.
-    mutual: bool = True
-    #: Target keypoints closer than this to the hole (px at a 1280-px long side, scaled) are dropped:
-    #: their descriptors see the object being removed.
-    hole_margin_px: Annotated[float, Range(0.0, 1000.0)] = 8.0
-    #: Robust estimator for the epipolar geometry.
-    robust_method: Literal["magsac", "ransac", "lmeds"] = "magsac"
-    #: Inlier threshold of every robust fit on the matches (F, E, the rotation-only homography at
-    #: twice it, the focal search): px at a 1280-px long side, scaled with the working image but
-    #: never below half of it (:meth:`ransac_px`).
-    ransac_threshold_px: Annotated[float, Range(1e-3, 100.0)] = 1.0
-    ransac_confidence: Annotated[float, Range(0.0, 1.0)] = 0.9999
-    ransac_max_iters: Annotated[int, Range(1, 1_000_000)] = 10000
-    #: The escalation ladder (:mod:`geofill.match.ladder`) climbs at most to this rung:
-    #: ``sift`` -> ``loose`` (more keypoints, looser ratio, stricter verification) -> ``asift``
-    #: (affine-simulated SIFT) -> ``guided`` (matching along the epipolar lines of the best F so
-    #: far), with ``learned`` (see below) between ``loose`` and ``asift`` when it is switched on.
-    #: ``sift`` is plain SIFT matching alone.
-    max_rung: Literal["sift", "loose", "learned", "asift", "guided"] = "guided"
-    #: The ladder starts no new rung after this many seconds (ASIFT also stops between its
-    #: simulated views). 30 s: room for SIFT, the loose rung and most of ASIFT's views at the
-    #: working size on 2 cores, under the depth and optimisation stages' time of a wide pair.
-    time_budget_s: Annotated[float, Range(0.0, 86_400.0)] = 30.0
-    #: A rung's geometry verifies with at least this many F inliers ...
-    min_verified: Annotated[int, Range(0, 1_000_000)] = 30
-    #: ... and this fraction of the hole within ``hole_support_radius_px`` (px at a 1280-px long
-    #: side, scaled) of an inlier; otherwise the ladder climbs.
-    min_hole_support: Annotated[float, Range(0.0, 1.0)] = 0.1
-    hole_support_radius_px: Annotated[float, Range(1.0, 10_000.0)] = 200.0
-    #: Inlier threshold of the rungs above ``sift``, as a multiple of ``ransac_threshold_px``:
-    #: looser matching lets more outliers in, so their geometry is verified more strictly.
-    strict_threshold_scale: Annotated[float, Range(0.1, 10.0)] = 0.75
-    #: ``loose`` rung: SIFT keypoints per image and ratio-test threshold (no mutual check).
-    loose_max_features: Annotated[int, Range(0, 1_000_000)] = 8000
-    loose_ratio: Annotated[float, Range(0.0, 1.0)] = 0.9
-    #: ``asift`` rung: tilts sqrt(2)^k for k < ``asift_max_tilt`` (4: up to 2.8, about 70 deg of
-    #: obliquity), detected on the working image downsized to a long side of at most
-    #: ``asift_max_side`` px (ASIFT's cost grows with the area times the number of views),
-    #: ``asift_features_per_view`` SIFT keypoints per simulated view, the ``asift_max_features``
-    #: strongest of all views kept per image (the matching cost grows with their product), ratio
-    #: threshold.
-    asift_max_tilt: Annotated[int, Range(1, 8)] = 4
-    asift_max_side: Annotated[int, Range(64, 8192)] = 800
-    asift_features_per_view: Annotated[int, Range(1, 100_000)] = 1000
-    asift_max_features: Annotated[int, Range(1, 100_000)] = 8000
-    asift_ratio: Annotated[float, Range(0.0, 1.0)] = 0.85
-    #: ``guided`` rung: half-width (px at the working resolution) of the epipolar band a match
-    #: must fall in, and the ratio threshold between the two best candidates inside it. Not looser
-    #: than plain SIFT's: a wrong match on its epipolar line passes F verification by construction
-    #: (0.9 gave 142 verified matches on a rendered 33-degree orbit, 77 % right; 0.8: 93, 96 %).
-    guided_band_px: Annotated[float, Range(0.1, 100.0)] = 3.0
-    guided_ratio: Annotated[float, Range(0.0, 1.0)] = 0.8
-    #: ``learned`` rung (between ``loose`` and ``asift``): an end-to-end keypoint + matcher ONNX
-    #: graph, e.g. the SuperPoint + LightGlue pipeline export (:mod:`geofill.match.learned`).
-    #: ``off``: never; ``auto``: when its weights resolve (``learned_model``,
-    #: ``$GEOFILL_MATCHER_MODEL``, the cache), otherwise the rung is skipped and the report says
-    #: why; ``on``: required, an error when it cannot be used. Off by default: no weights ship.
-    learned: Literal["off", "auto", "on"] = "off"
-    #: Explicit matcher ONNX file; wins over the environment variable and the cache (implies ``on``).
-    learned_model: str | None = None
-    #: Long side (px) both images are resized to (at most) for the learned matcher.
-    learned_max_side: Annotated[int, Range(64, 8192)] = 1024
-    #: Allow downloading the matcher during a fill (``HF_HUB_OFFLINE=1`` forbids it too). Off by
-    #: default: a fill never reaches for the network; ``geofill models download`` does.
-    download: bool = False
+    max_features: Annotated[int, Range(0, 1_000_000)] = setting(
+        4000,
+        "SIFT keypoints per image (strongest kept); 0 = no limit. 4000 gave the same pose accuracy as 8000 "
+        "on the GT-pose pairs (median 0.18 deg / 0.95 deg) at half the matching time.",
+    )
+    sift_max_side: Annotated[int, Range(0, 16384)] = setting(
+        0,
+        "The ``sift`` rung detects on the working images downsized to this long side (px; 0 = the working "
+        "size itself); positions are mapped back to working pixels.",
+    )
+    ratio: Annotated[float, Range(0.0, 1.0)] = setting(0.8, "Lowe's ratio test threshold.")
+    mutual: bool = setting(True, "Keep only matches that are each other's nearest neighbour.")
+    hole_margin_px: Annotated[float, Range(0.0, 1000.0)] = setting(
+        8.0,
+        "Target keypoints closer than this to the hole (px at a 1280-px long side, scaled) are dropped: "
+        "their descriptors see the object being removed.",
+    )
+    robust_method: Literal["magsac", "ransac", "lmeds"] = setting(
+        "magsac",
+        "Robust estimator for the epipolar geometry.",
+    )
+    ransac_threshold_px: Annotated[float, Range(1e-3, 100.0)] = setting(1.0, _RANSAC)
+    ransac_confidence: Annotated[float, Range(0.0, 1.0)] = setting(0.9999, _RANSAC)
+    ransac_max_iters: Annotated[int, Range(1, 1_000_000)] = setting(10000, _RANSAC)
+    max_rung: Literal["sift", "loose", "learned", "asift", "guided"] = setting(
+        "guided",
+        "The escalation ladder (:mod:`geofill.match.ladder`) climbs at most to this rung: ``sift`` -> "
+        "``loose`` (more keypoints, looser ratio, stricter verification) -> ``asift`` (affine-simulated "
+        "SIFT) -> ``guided`` (matching along the epipolar lines of the best F so far), with ``learned`` "
+        "(see below) between ``loose`` and ``asift`` when it is switched on. ``sift`` is plain SIFT "
+        "matching alone.",
+    )
+    time_budget_s: Annotated[float, Range(0.0, 86_400.0)] = setting(
+        30.0,
+        "The ladder starts no new rung after this many seconds (ASIFT also stops between its simulated "
+        "views). 30 s: room for SIFT, the loose rung and most of ASIFT's views at the working size on 2 "
+        "cores, under the depth and optimisation stages' time of a wide pair.",
+    )
+    min_verified: Annotated[int, Range(0, 1_000_000)] = setting(
+        30,
+        "A rung's geometry verifies with at least this many F inliers ...",
+    )
+    min_hole_support: Annotated[float, Range(0.0, 1.0)] = setting(0.1, _HOLE_SUPPORT)
+    hole_support_radius_px: Annotated[float, Range(1.0, 10_000.0)] = setting(200.0, _HOLE_SUPPORT)
+    strict_threshold_scale: Annotated[float, Range(0.1, 10.0)] = setting(
+        0.75,
+        "Inlier threshold of the rungs above ``sift``, as a multiple of ``ransac_threshold_px``: looser "
+        "matching lets more outliers in, so their geometry is verified more strictly.",
+    )
+    loose_max_features: Annotated[int, Range(0, 1_000_000)] = setting(8000, _LOOSE_RUNG)
+    loose_ratio: Annotated[float, Range(0.0, 1.0)] = setting(0.9, _LOOSE_RUNG)
+    asift_max_tilt: Annotated[int, Range(1, 8)] = setting(4, _ASIFT_RUNG)
+    asift_max_side: Annotated[int, Range(64, 8192)] = setting(800, _ASIFT_RUNG)
+    asift_features_per_view: Annotated[int, Range(1, 100_000)] = setting(1000, _ASIFT_RUNG)
+    asift_max_features: Annotated[int, Range(1, 100_000)] = setting(8000, _ASIFT_RUNG)
+    asift_ratio: Annotated[float, Range(0.0, 1.0)] = setting(0.85, _ASIFT_RUNG)
+    guided_band_px: Annotated[float, Range(0.1, 100.0)] = setting(3.0, _GUIDED_RUNG)
+    guided_ratio: Annotated[float, Range(0.0, 1.0)] = setting(0.8, _GUIDED_RUNG)
+    learned: Literal["off", "auto", "on"] = setting(
+        "off",
+        "``learned`` rung (between ``loose`` and ``asift``): an end-to-end keypoint + matcher ONNX graph, "
+        "e.g. the SuperPoint + LightGlue pipeline export (:mod:`geofill.match.learned`). ``off``: never; "
+        "``auto``: when its weights resolve (``learned_model``, ``$GEOFILL_MATCHER_MODEL``, the cache), "
+        "otherwise the rung is skipped and the report says why; ``on``: required, an error when it cannot "
+        "be used. Off by default: no weights ship.",
+    )
+    learned_model: str | None = setting(
+        None,
+        "Explicit matcher ONNX file; wins over the environment variable and the cache (implies ``on``).",
+    )
+    learned_max_side: Annotated[int, Range(64, 8192)] = setting(
+        1024,
+        "Long side (px) both images are resized to (at most) for the learned matcher.",
+    )
+    download: bool = setting(
+        False,
+        "Allow downloading the matcher during a fill (``HF_HUB_OFFLINE=1`` forbids it too). Off by default: "
+        "a fill never reaches for the network; ``geofill models download`` does.",
+    )
 
     def ransac_px(self, px_scale: float) -> float:
         """The inlier threshold in pixels of an image ``px_scale`` times the 1280-px reference."""
@@ -213,60 +307,112 @@ class MatchingConfig:
 class GeometryConfig:
     """Relative pose, triangulation, depth scale/offset fit and degeneracy checks."""
 
-    #: Fewer verified matches than this is a degenerate pair (single-image fallback).
-    min_inliers: Annotated[int, Range(5, 1_000_000)] = 20
-    #: Median triangulation angle (deg) under which the pair is treated as near-pure rotation.
-    min_median_parallax_deg: Annotated[float, Range(0, 90)] = 0.3
-    #: Triangulated points with a reprojection error above this (px) are discarded.
-    max_reprojection_px: Annotated[float, Range(0, 1000, lo_open=True)] = 4.0
-    #: Triangulated points with a ray angle below this (deg) carry no depth information.
-    min_point_parallax_deg: Annotated[float, Range(0, 90)] = 0.05
-    #: Least squares or a robust (Huber, IRLS) variant for the depth scale/offset fit.
-    depth_fit: Literal["lstsq", "robust"] = "robust"
-    #: Space of the affine depth fit. Inverse depth measured better on the GT-depth pairs
-    #: (benchmarks/depth_fit_space.py; docs/results.md) whatever the backend's native space.
-    fit_space: Literal["depth", "inverse"] = "inverse"
+    min_inliers: Annotated[int, Range(5, 1_000_000)] = setting(
+        20,
+        "Fewer verified matches than this is a degenerate pair (single-image fallback).",
+    )
+    min_median_parallax_deg: Annotated[float, Range(0, 90)] = setting(
+        0.3,
+        "Median triangulation angle (deg) under which the pair is treated as near-pure rotation.",
+    )
+    max_reprojection_px: Annotated[float, Range(0, 1000, lo_open=True)] = setting(
+        4.0,
+        "Triangulated points with a reprojection error above this (px) are discarded.",
+    )
+    min_point_parallax_deg: Annotated[float, Range(0, 90)] = setting(
+        0.05,
+        "Triangulated points with a ray angle below this (deg) carry no depth information.",
+    )
+    depth_fit: Literal["lstsq", "robust"] = setting(
+        "robust",
+        "Least squares or a robust (Huber, IRLS) variant for the depth scale/offset fit.",
+    )
+    fit_space: Literal["depth", "inverse"] = setting(
+        "inverse",
+        "Space of the affine depth fit. Inverse depth measured better on the GT-depth pairs "
+        "(benchmarks/depth_fit_space.py; docs/results.md) whatever the backend's native space.",
+    )
 
 
 @dataclass
 class DepthConfig:
     """Which depth backend gives the source's dense depth."""
 
-    #: ``auto``: ``fused`` when the learned model's weights resolve, else ``stereo`` (the reason is
-    #: printed and reported); ``stereo``: weight-free plane sweep + edge-aware completion;
-    #: ``onnx``: learned monocular network; ``fused``: learned depth fitted densely to stereo;
-    #: ``sparse``: triangulated points interpolated; ``file``: a user-supplied map.
-    backend: Literal["auto", "stereo", "fused", "onnx", "sparse", "file"] = "auto"
-    #: ``onnx``/``fused``: which network (Depth Anything V2 Small is Apache-2.0; DPT-Hybrid is the
-    #: paper's; MiDaS v2.1 small is the fastest).
-    model: Literal["depth-anything-v2-small", "dpt-hybrid", "midas-v2.1-small"] = "depth-anything-v2-small"
-    #: ``onnx``/``fused``: explicit ONNX file of ``model``; wins over its environment variable, the
-    #: cache and the hub (CLI ``--depth-model``).
-    model_path: str | None = None
-    #: Allow downloading missing weights from the hub during a fill (``HF_HUB_OFFLINE=1`` forbids it
-    #: too). Off by default: a fill never reaches for the network; ``geofill models download`` does.
-    download: bool = False
-    #: ``file`` backend: path of a .npy / 16-bit PNG / TIFF / EXR map the size of the source.
-    file_path: str | None = None
-    #: ``file`` backend: what the values are.
-    file_kind: Literal["depth", "inverse_depth", "disparity"] = "depth"
-    #: ``file`` backend: multiply stored values by this to get the stated kind (e.g. 0.001 for mm PNG).
-    file_scale: Annotated[float, Range(0, 1e9, lo_open=True)] = 1.0
-    #: ``file`` backend: True when the map is metric (pose translation gets its scale from it).
-    file_metric: bool = False
-    #: ``sparse`` backend: working long side (px) of the edge-aware interpolation.
-    sparse_max_side: Annotated[int, Range(16, 8192)] = 640
-    #: ``stereo``: long side (px) of the plane sweep and of its completion.
-    stereo_max_side: Annotated[int, Range(32, 4096)] = 448
-    #: ``stereo``: most depth hypotheses (planes uniform in inverse depth); fewer are used when the
-    #: sweep's displacement range is shorter (about one plane per pixel of displacement).
-    stereo_max_planes: Annotated[int, Range(2, 1024)] = 96
-    #: ``stereo``: side (px at the sweep's resolution) of the NCC window.
-    stereo_patch_px: Annotated[int, Range(3, 63)] = 7
-    #: ``stereo``: radius (px) of the guided filter that aggregates each cost slice; 0 = off.
-    stereo_aggregation_radius: Annotated[int, Range(0, 64)] = 8
-    #: ``stereo``: pixels under this confidence (0-1) are re-estimated by edge-aware completion.
-    stereo_min_confidence: Annotated[float, Range(0, 1)] = 0.5
+    backend: Literal["auto", "stereo", "fused", "onnx", "sparse", "file"] = setting(
+        "auto",
+        "``auto``: ``fused`` when the learned model's weights resolve, else ``stereo`` (the reason is "
+        "printed and reported); ``stereo``: weight-free plane sweep + edge-aware completion; ``onnx``: "
+        "learned monocular network; ``fused``: learned depth fitted densely to stereo; ``sparse``: "
+        "triangulated points interpolated; ``file``: a user-supplied map.",
+    )
+    model: Literal["depth-anything-v2-small", "dpt-hybrid", "midas-v2.1-small"] = setting(
+        "depth-anything-v2-small",
+        "``onnx``/``fused``: which network (Depth Anything V2 Small is Apache-2.0; DPT-Hybrid is the "
+        "paper's; MiDaS v2.1 small is the fastest).",
+    )
+    model_path: str | None = setting(
+        None,
+        "``onnx``/``fused``: explicit ONNX file of ``model``; wins over its environment variable, the cache "
+        "and the hub (CLI ``--depth-model``).",
+    )
+    download: bool = setting(
+        False,
+        "Allow downloading missing weights from the hub during a fill (``HF_HUB_OFFLINE=1`` forbids it "
+        "too). Off by default: a fill never reaches for the network; ``geofill models download`` does.",
+    )
+    file_path: str | None = setting(
+        None,
+        "``file`` backend: path of a .npy / 16-bit PNG / TIFF / EXR map the size of the source.",
+    )
+    file_kind: Literal["depth", "inverse_depth", "disparity"] = setting(
+        "depth",
+        "``file`` backend: what the values are.",
+    )
+    file_scale: Annotated[float, Range(0, 1e9, lo_open=True)] = setting(
+        1.0,
+        "``file`` backend: multiply stored values by this to get the stated kind (e.g. 0.001 for mm PNG).",
+    )
+    file_metric: bool = setting(
+        False,
+        "``file`` backend: True when the map is metric (pose translation gets its scale from it).",
+    )
+    sparse_max_side: Annotated[int, Range(16, 8192)] = setting(
+        640,
+        "``sparse`` backend: working long side (px) of the edge-aware interpolation.",
+    )
+    stereo_max_side: Annotated[int, Range(32, 4096)] = setting(
+        448,
+        "``stereo``: long side (px) of the plane sweep and of its completion.",
+    )
+    stereo_max_planes: Annotated[int, Range(2, 1024)] = setting(
+        96,
+        "``stereo``: most depth hypotheses (planes uniform in inverse depth); fewer are used when the "
+        "sweep's displacement range is shorter (about one plane per pixel of displacement).",
+    )
+    stereo_patch_px: Annotated[int, Range(3, 63)] = setting(
+        7,
+        "``stereo``: side (px at the sweep's resolution) of the NCC window.",
+    )
+    stereo_aggregation_radius: Annotated[int, Range(0, 64)] = setting(
+        8,
+        "``stereo``: radius (px) of the guided filter that aggregates each cost slice; 0 = off.",
+    )
+    stereo_min_confidence: Annotated[float, Range(0, 1)] = setting(
+        0.5,
+        "``stereo``: pixels under this confidence (0-1) are re-estimated by edge-aware completion.",
+    )
+
+
+_LOSS_WEIGHTS = "Weights of L_photo, L_feat and L_negD (paper: 10, 10, 0.5)."
+_LOSS_SWITCHES = "Loss switches (the paper's loss ablation)."
+_WEIGHT_MAP_SWITCHES = "Weight-map switches (the paper's W ablation); both off = uniform weights."
+_CANNY_THRESHOLDS = (
+    "Canny hysteresis thresholds per blurred image (the paper gives none): the high one is this percentile "
+    "of its gradient magnitude over known pixels, the low one ``canny_low_ratio`` times it (fixed "
+    "thresholds found 0.4 % to 34 % edge pixels on the dev pairs, whatever their contrast)."
+)
+_BARRON_LOSS = "Barron's general robust loss for L_feat: shape alpha and scale c (paper: -2 and 10 px)."
+_PAPER_CONVERGENCE = "``paper`` solver: convergence threshold eps_opt and window m of the supplement's test."
 
 
 @dataclass
@@ -276,94 +422,131 @@ class OptimizeConfig:
     Pixel distances are given at a 1280-px long side (the paper's 1280x720) and scaled with the
     long side of the optimisation's finest level."""
 
-    enabled: bool = True
-    #: Fewest pose-inlier matches on the source depth for the optimisation to run (L_feat is what
-    #: holds the pose against the photometric term's far minima); with fewer, or with matches
-    #: from a ladder rung that did not verify, the initial geometry is kept and the report says
-    #: why. 20 is the pose stage's own floor (``geometry.min_inliers``); 0 never skips.
-    min_features: Annotated[int, Range(0, 100000)] = 20
-    #: ``fast``: Levenberg-Marquardt on the same objective; ``paper``: DiffGrad, as published.
-    solver: Literal["fast", "paper"] = "fast"
-    #: Weights of L_photo, L_feat and L_negD (paper: 10, 10, 0.5).
-    lambda_photo: Annotated[float, Range(0, 1e6)] = 10.0
-    lambda_feat: Annotated[float, Range(0, 1e6)] = 10.0
-    lambda_negd: Annotated[float, Range(0, 1e6)] = 0.5
-    #: Loss switches (the paper's loss ablation).
-    use_photo: bool = True
-    use_feat: bool = True
-    use_negd: bool = True
-    #: Weight-map switches (the paper's W ablation); both off = uniform weights.
-    use_hole_weight: bool = True
-    use_edge_weight: bool = True
-    #: sigma of the hole-distance weight W_h = exp(-d^2 / 2 sigma^2) (paper: 192 px at 1280x720).
-    hole_sigma_px: Annotated[float, Range(0, 1e5, lo_open=True)] = 192.0
-    #: Gaussian blur kernel sizes before each of the Canny edge maps of W_e (the paper uses 4 maps
-    #: and gives no sizes; odd after scaling).
-    edge_blur_kernels: Annotated[list[Annotated[int, Range(1, 255)]], Length(1, 16)] = field(
-        default_factory=lambda: [3, 7, 15, 31]
+    enabled: bool = setting(
+        True,
+        "Run the joint optimisation; off keeps the initial pose and depth (the ``init`` preset).",
     )
-    #: Canny hysteresis thresholds per blurred image (the paper gives none): the high one is this
-    #: percentile of its gradient magnitude over known pixels, the low one ``canny_low_ratio`` times it
-    #: (fixed thresholds found 0.4 % to 34 % edge pixels on the dev pairs, whatever their contrast).
-    canny_high_percentile: Annotated[float, Range(0, 100)] = 90.0
-    canny_low_ratio: Annotated[float, Range(0, 1)] = 0.4
-    #: Square dilation of each edge map (paper: kernel size 4).
-    edge_dilation_px: Annotated[int, Range(0, 64)] = 4
-    #: Barron's general robust loss for L_feat: shape alpha and scale c (paper: -2 and 10 px).
-    barron_alpha: Annotated[float, Range(-1000, 2)] = -2.0
-    barron_c_px: Annotated[float, Range(0, 1e4, lo_open=True)] = 10.0
-    #: Gaussian pyramid levels, optimised coarse to fine (paper: 4).
-    pyramid_levels: Annotated[int, Range(1, 8)] = 4
-    #: Long side (px) of the finest level; the working images are downsized to it when larger. The
-    #: paper optimises at 1280 px; 640 gave the same mean hole PSNR on the 23 DEV pairs (19.06 dB,
-    #: no pair worse by more than 0.19 dB) with the stage 1.3-3.8x faster (docs/architecture.md).
-    max_side: Annotated[int, Range(32, 16384)] = 640
-    #: ``paper`` solver: DiffGrad's constant learning rate (paper: 1e-2).
-    paper_lr: Annotated[float, Range(0, 10, lo_open=True)] = 1e-2
-    #: ``paper`` solver: cumulative iteration limits per level, coarse to fine (paper: 4k, 7k, 9k, 10k).
+    min_features: Annotated[int, Range(0, 100000)] = setting(
+        20,
+        "Fewest pose-inlier matches on the source depth for the optimisation to run (L_feat is what holds "
+        "the pose against the photometric term's far minima); with fewer, or with matches from a ladder "
+        "rung that did not verify, the initial geometry is kept and the report says why. 20 is the pose "
+        "stage's own floor (``geometry.min_inliers``); 0 never skips.",
+    )
+    solver: Literal["fast", "paper"] = setting(
+        "fast",
+        "``fast``: Levenberg-Marquardt on the same objective; ``paper``: DiffGrad, as published.",
+    )
+    lambda_photo: Annotated[float, Range(0, 1e6)] = setting(10.0, _LOSS_WEIGHTS)
+    lambda_feat: Annotated[float, Range(0, 1e6)] = setting(10.0, _LOSS_WEIGHTS)
+    lambda_negd: Annotated[float, Range(0, 1e6)] = setting(0.5, _LOSS_WEIGHTS)
+    use_photo: bool = setting(True, _LOSS_SWITCHES)
+    use_feat: bool = setting(True, _LOSS_SWITCHES)
+    use_negd: bool = setting(True, _LOSS_SWITCHES)
+    use_hole_weight: bool = setting(True, _WEIGHT_MAP_SWITCHES)
+    use_edge_weight: bool = setting(True, _WEIGHT_MAP_SWITCHES)
+    hole_sigma_px: Annotated[float, Range(0, 1e5, lo_open=True)] = setting(
+        192.0,
+        "sigma of the hole-distance weight W_h = exp(-d^2 / 2 sigma^2) (paper: 192 px at 1280x720).",
+    )
+    edge_blur_kernels: Annotated[list[Annotated[int, Range(1, 255)]], Length(1, 16)] = setting(
+        [3, 7, 15, 31],
+        "Gaussian blur kernel sizes before each of the Canny edge maps of W_e (the paper uses 4 maps and "
+        "gives no sizes; odd after scaling).",
+    )
+    canny_high_percentile: Annotated[float, Range(0, 100)] = setting(90.0, _CANNY_THRESHOLDS)
+    canny_low_ratio: Annotated[float, Range(0, 1)] = setting(0.4, _CANNY_THRESHOLDS)
+    edge_dilation_px: Annotated[int, Range(0, 64)] = setting(
+        4,
+        "Square dilation of each edge map (paper: kernel size 4).",
+    )
+    barron_alpha: Annotated[float, Range(-1000, 2)] = setting(-2.0, _BARRON_LOSS)
+    barron_c_px: Annotated[float, Range(0, 1e4, lo_open=True)] = setting(10.0, _BARRON_LOSS)
+    pyramid_levels: Annotated[int, Range(1, 8)] = setting(
+        4,
+        "Gaussian pyramid levels, optimised coarse to fine (paper: 4).",
+    )
+    max_side: Annotated[int, Range(32, 16384)] = setting(
+        640,
+        "Long side (px) of the finest level; the working images are downsized to it when larger. The paper "
+        "optimises at 1280 px; 640 gave the same mean hole PSNR on the 23 DEV pairs (19.06 dB, no pair "
+        "worse by more than 0.19 dB) with the stage 1.3-3.8x faster (docs/architecture.md).",
+    )
+    paper_lr: Annotated[float, Range(0, 10, lo_open=True)] = setting(
+        1e-2,
+        "``paper`` solver: DiffGrad's constant learning rate (paper: 1e-2).",
+    )
     paper_iterations: Annotated[
         list[Annotated[int, Range(0, 1_000_000)]], Length(1, 8, min_of="pyramid_levels")
-    ] = field(default_factory=lambda: [4000, 7000, 9000, 10000])
-    #: ``paper`` solver: convergence threshold eps_opt and window m of the supplement's test.
-    paper_eps: Annotated[float, Range(0, 1)] = 1e-6
-    paper_window: Annotated[int, Range(1, 100_000)] = 10
-    #: ``fast`` solver: Levenberg-Marquardt iterations per level, coarse to fine. The finest level
-    #: starts where the coarser ones converged: 4 steps there (was 8) gave the same hole PSNR over 3
-    #: mask seeds x 23 DEV pairs (mean change +0.001 dB, none beyond 0.05 dB) and cut the stage on
-    #: berlin_01_02 from 0.38 to 0.28 s (objective equal to 4 digits).
+    ] = setting(
+        [4000, 7000, 9000, 10000],
+        "``paper`` solver: cumulative iteration limits per level, coarse to fine (paper: 4k, 7k, 9k, 10k).",
+    )
+    paper_eps: Annotated[float, Range(0, 1)] = setting(1e-6, _PAPER_CONVERGENCE)
+    paper_window: Annotated[int, Range(1, 100_000)] = setting(10, _PAPER_CONVERGENCE)
     fast_iterations: Annotated[
         list[Annotated[int, Range(0, 10_000)]], Length(1, 8, min_of="pyramid_levels")
-    ] = field(default_factory=lambda: [30, 20, 12, 4])
-    #: ``fast`` solver: a level stops when an accepted step lowers the objective by less than this
-    #: (relative).
-    fast_ftol: Annotated[float, Range(0, 1)] = 1e-6
-    #: ``fast`` solver: largest step, as the 95th percentile of the motion it gives the reprojected
-    #: points, in px of the pyramid level being solved (a trust region).
-    fast_step_px: Annotated[float, Range(0, 1000, lo_open=True)] = 4.0
-    #: ``fast`` solver: photometric residuals only on source pixels whose reprojection lands where W
-    #: (max-filtered by ``fast_margin_px``) is at least this fraction of its maximum; 0 = all pixels.
-    fast_min_weight: Annotated[float, Range(0, 1)] = 1e-3
-    #: ``fast`` solver: margin (px at each level) around the weighted area kept in that set.
-    fast_margin_px: Annotated[int, Range(0, 64)] = 1
-    #: BLAS (and, for the paper solver, torch) threads while optimising (restored afterwards). The
-    #: work is many small memory-bound operations: 2 torch threads were 13x slower than 1 with the 2
-    #: cores shared by other jobs.
-    threads: Annotated[int, Range(1, 256)] = 1
-    #: Refine a focal scale shared by both images as an extra parameter (issue 7); off = the paper.
-    refine_focal: bool = False
-    #: Weak prior on the log focal scale phi: ``w * l0 * phi^2`` with l0 the initial objective, so a
-    #: focal change by a factor e costs ``w`` times the initial objective.
-    focal_prior_weight: Annotated[float, Range(0, 1e6)] = 0.01
+    ] = setting(
+        [30, 20, 12, 4],
+        "``fast`` solver: Levenberg-Marquardt iterations per level, coarse to fine. The finest level starts "
+        "where the coarser ones converged: 4 steps there (was 8) gave the same hole PSNR over 3 mask seeds "
+        "x 23 DEV pairs (mean change +0.001 dB, none beyond 0.05 dB) and cut the stage on berlin_01_02 from "
+        "0.38 to 0.28 s (objective equal to 4 digits).",
+    )
+    fast_ftol: Annotated[float, Range(0, 1)] = setting(
+        1e-6,
+        "``fast`` solver: a level stops when an accepted step lowers the objective by less than this "
+        "(relative).",
+    )
+    fast_step_px: Annotated[float, Range(0, 1000, lo_open=True)] = setting(
+        4.0,
+        "``fast`` solver: largest step, as the 95th percentile of the motion it gives the reprojected "
+        "points, in px of the pyramid level being solved (a trust region).",
+    )
+    fast_min_weight: Annotated[float, Range(0, 1)] = setting(
+        1e-3,
+        "``fast`` solver: photometric residuals only on source pixels whose reprojection lands where W "
+        "(max-filtered by ``fast_margin_px``) is at least this fraction of its maximum; 0 = all pixels.",
+    )
+    fast_margin_px: Annotated[int, Range(0, 64)] = setting(
+        1,
+        "``fast`` solver: margin (px at each level) around the weighted area kept in that set.",
+    )
+    threads: Annotated[int, Range(1, 256)] = setting(
+        1,
+        "BLAS (and, for the paper solver, torch) threads while optimising (restored afterwards). The work "
+        "is many small memory-bound operations: 2 torch threads were 13x slower than 1 with the 2 cores "
+        "shared by other jobs.",
+    )
+    refine_focal: bool = setting(
+        False,
+        "Refine a focal scale shared by both images as an extra parameter (issue 7); off = the paper.",
+    )
+    focal_prior_weight: Annotated[float, Range(0, 1e6)] = setting(
+        0.01,
+        "Weak prior on the log focal scale phi: ``w * l0 * phi^2`` with l0 the initial objective, so a "
+        "focal change by a factor e costs ``w`` times the initial objective.",
+    )
 
 
 @dataclass
 class RenderConfig:
     """Rendering the source into the target view."""
 
-    #: Mesh edges with 2|d_i - d_j| / (d_i + d_j) above this are cut (paper: 4e-2).
-    edge_threshold: Annotated[float, Range(0, 10, lo_open=True)] = 0.04
-    #: A hole the source covers less than this fraction of falls back to single-image inpainting.
-    min_hole_coverage: Annotated[float, Range(0, 1)] = 0.05
+    edge_threshold: Annotated[float, Range(0, 10, lo_open=True)] = setting(
+        0.04,
+        "Mesh edges with 2|d_i - d_j| / (d_i + d_j) above this are cut (paper: 4e-2).",
+    )
+    min_hole_coverage: Annotated[float, Range(0, 1)] = setting(
+        0.05,
+        "A hole the source covers less than this fraction of falls back to single-image inpainting.",
+    )
+
+
+_FLOW_TRUST = (
+    "Band flow vectors longer than this (px) or failing the forward-backward check by more than "
+    "``flow_consistency_px`` are not trusted."
+)
 
 
 @dataclass
@@ -372,58 +555,89 @@ class RefineConfig:
     inpainting (:mod:`geofill.refine`, :mod:`geofill.composite.merge`). Pixel distances are at a 1280-px
     long side and scale with the image."""
 
-    #: Colour/exposure correction fitted on the known band: "none"; "global" (one robust gain +
-    #: offset per channel, as the homography baseline); "gain" (spatially smooth gain + offset);
-    #: "poisson" (gradient-domain: the render's gradients, the target's values on the border).
-    colour: Literal["none", "global", "gain", "poisson"] = "gain"
-    #: Residual alignment: dense optical flow (OpenCV DIS) render -> target on the known band,
-    #: carried into the hole by membrane interpolation and composed with the correspondence field.
-    flow: bool = True
-    #: Width (px) of the known ring around the hole that refinement measures on.
-    band_px: Annotated[float, Range(1, 1024)] = 32.0
-    #: Long side (px) of the image-equivalent resolution at which flow and colour fields are
-    #: estimated; they are applied at the input resolution. 640 (was 1280): over 3 mask seeds x 23
-    #: DEV pairs the hole PSNR moved by +0.000 dB on average (sd 0.07, worst -0.17) and the stage
-    #: took 0.21 instead of 0.52 s on berlin_01_02 (docs/architecture.md).
-    max_side: Annotated[int, Range(32, 16384)] = 640
-    #: DIS preset (speed/accuracy).
-    flow_preset: Literal["ultrafast", "fast", "medium"] = "fast"
-    #: Band flow vectors longer than this (px) or failing the forward-backward check by more than
-    #: ``flow_consistency_px`` are not trusted.
-    flow_max_px: Annotated[float, Range(0, 1e4, lo_open=True)] = 24.0
-    flow_consistency_px: Annotated[float, Range(0, 1e3, lo_open=True)] = 1.0
-    #: Gaussian scale (px) of the local statistics of the "gain" colour model.
-    gain_sigma_px: Annotated[float, Range(0, 1000, lo_open=True)] = 8.0
-    #: Regulariser of the local gain (intensity variance): where the render's local variance is
-    #: below it (flat regions, where gain and offset cannot be told apart) the gain tends to the
-    #: global one and the offset does the work.
-    gain_eps: Annotated[float, Range(0, 1, lo_open=True)] = 0.0005
-    #: Gaussian scale (px) of the smoothing of the target - render difference on the band before
-    #: the "poisson" solve (0: exact Poisson blend; larger: fewer streaks from misaligned texture).
-    poisson_smooth_px: Annotated[float, Range(0, 1000)] = 4.0
-    #: Width (px) of the soft blend (M_single) from the render into single-image inpainting where the
-    #: render has no data; 0 pastes with hard edges.
-    feather_px: Annotated[float, Range(0, 1000)] = 4.0
+    colour: Literal["none", "global", "gain", "poisson"] = setting(
+        "gain",
+        'Colour/exposure correction fitted on the known band: "none"; "global" (one robust gain + offset '
+        'per channel, as the homography baseline); "gain" (spatially smooth gain + offset); "poisson" '
+        "(gradient-domain: the render's gradients, the target's values on the border).",
+    )
+    flow: bool = setting(
+        True,
+        "Residual alignment: dense optical flow (OpenCV DIS) render -> target on the known band, carried "
+        "into the hole by membrane interpolation and composed with the correspondence field.",
+    )
+    band_px: Annotated[float, Range(1, 1024)] = setting(
+        32.0,
+        "Width (px) of the known ring around the hole that refinement measures on.",
+    )
+    max_side: Annotated[int, Range(32, 16384)] = setting(
+        640,
+        "Long side (px) of the image-equivalent resolution at which flow and colour fields are estimated; "
+        "they are applied at the input resolution. 640 (was 1280): over 3 mask seeds x 23 DEV pairs the "
+        "hole PSNR moved by +0.000 dB on average (sd 0.07, worst -0.17) and the stage took 0.21 instead of "
+        "0.52 s on berlin_01_02 (docs/architecture.md).",
+    )
+    flow_preset: Literal["ultrafast", "fast", "medium"] = setting("fast", "DIS preset (speed/accuracy).")
+    flow_max_px: Annotated[float, Range(0, 1e4, lo_open=True)] = setting(24.0, _FLOW_TRUST)
+    flow_consistency_px: Annotated[float, Range(0, 1e3, lo_open=True)] = setting(1.0, _FLOW_TRUST)
+    gain_sigma_px: Annotated[float, Range(0, 1000, lo_open=True)] = setting(
+        8.0,
+        'Gaussian scale (px) of the local statistics of the "gain" colour model.',
+    )
+    gain_eps: Annotated[float, Range(0, 1, lo_open=True)] = setting(
+        0.0005,
+        "Regulariser of the local gain (intensity variance): where the render's local variance is below it "
+        "(flat regions, where gain and offset cannot be told apart) the gain tends to the global one and "
+        "the offset does the work.",
+    )
+    poisson_smooth_px: Annotated[float, Range(0, 1000)] = setting(
+        4.0,
+        "Gaussian scale (px) of the smoothing of the target - render difference on the band before the "
+        '"poisson" solve (0: exact Poisson blend; larger: fewer streaks from misaligned texture).',
+    )
+    feather_px: Annotated[float, Range(0, 1000)] = setting(
+        4.0,
+        "Width (px) of the soft blend (M_single) from the render into single-image inpainting where the "
+        "render has no data; 0 pastes with hard edges.",
+    )
 
 
 @dataclass
 class InpaintConfig:
     """Single-image inpainting for what the source cannot supply."""
 
-    #: "telea"/"ns": OpenCV (no weights); "lama": LaMa through ONNX Runtime; "auto": LaMa when its
-    #: model resolves (path, $GEOFILL_LAMA_MODEL, cache, hub), else Telea (the reason is reported).
-    method: Literal["telea", "ns", "patchmatch", "lama", "auto"] = "auto"
-    #: OpenCV inpainting neighbourhood radius (px).
-    radius_px: Annotated[float, Range(0, 100, lo_open=True)] = 5.0
-    #: "patchmatch": radius (px) of the compared patches, (2r + 1)^2 pixels (PyPatchMatch's examples
-    #: use 3; larger follows larger structures, much slower).
-    patch_radius_px: Annotated[int, Range(1, 15)] = 3
-    #: Explicit LaMa ONNX file (e.g. Carve/LaMa-ONNX's lama.onnx); wins over the environment
-    #: variable, the cache and the hub.
-    lama_model: str | None = None
-    #: Allow downloading the LaMa model from the hub (``HF_HUB_OFFLINE=1`` forbids it too). Off by
-    #: default: no checksum is published for it, so a 207 MB unverifiable download is opt-in.
-    download: bool = False
+    method: Literal["telea", "ns", "patchmatch", "lama", "auto"] = setting(
+        "auto",
+        '"telea"/"ns": OpenCV (no weights); "lama": LaMa through ONNX Runtime; "auto": LaMa when its model '
+        "resolves (path, $GEOFILL_LAMA_MODEL, cache, hub), else Telea (the reason is reported).",
+    )
+    radius_px: Annotated[float, Range(0, 100, lo_open=True)] = setting(
+        5.0,
+        "OpenCV inpainting neighbourhood radius (px).",
+    )
+    patch_radius_px: Annotated[int, Range(1, 15)] = setting(
+        3,
+        '"patchmatch": radius (px) of the compared patches, (2r + 1)^2 pixels (PyPatchMatch\'s examples use '
+        "3; larger follows larger structures, much slower).",
+    )
+    lama_model: str | None = setting(
+        None,
+        "Explicit LaMa ONNX file (e.g. Carve/LaMa-ONNX's lama.onnx); wins over the environment variable, "
+        "the cache and the hub.",
+    )
+    download: bool = setting(
+        False,
+        "Allow downloading the LaMa model from the hub (``HF_HUB_OFFLINE=1`` forbids it too). Off by "
+        "default: no checksum is published for it, so a 207 MB unverifiable download is opt-in.",
+    )
+
+
+_BAND_AGREEMENT = (
+    "Agreement with the target: the render's error (mean absolute difference, 0-255) on the known ring "
+    "around the hole after colour correction, spread into the hole with a Gaussian of ``band_sigma_px`` (so "
+    "each part of the hole is judged by the ring next to it); a reference's score halves at an error of "
+    "``band_error_scale``."
+)
 
 
 @dataclass
@@ -431,35 +645,47 @@ class FusionConfig:
     """Choosing, per hole pixel, which reference supplies it (:mod:`geofill.fuse`). Pixel
     distances are at a 1280-px long side and scale with the image."""
 
-    #: How references' regions meet: "feather" (per-pixel best reference, blended over
-    #: ``feather_px``), "graphcut" (OpenCV's colour-gradient graph-cut seams between the
-    #: overlapping references, then the same feather) or "blend" (score-weighted average). On the
-    #: 7 multi-reference DEV sets feather gave the best mean hole PSNR (benchmarks: docs/results.md).
-    seams: Literal["graphcut", "feather", "blend"] = "feather"
-    #: ``blend``: the references covering a pixel averaged with weights score ** blend_power.
-    blend_power: Annotated[float, Range(0, 16)] = 2.0
-    #: Width (px) of the blend across the boundary between two references' regions.
-    feather_px: Annotated[float, Range(0, 1000)] = 6.0
-    #: Agreement with the target: the render's error (mean absolute difference, 0-255) on the known
-    #: ring around the hole after colour correction, spread into the hole with a Gaussian of
-    #: ``band_sigma_px`` (so each part of the hole is judged by the ring next to it); a
-    #: reference's score halves at an error of ``band_error_scale``.
-    band_error_scale: Annotated[float, Range(0, 255, lo_open=True)] = 2.0
-    band_sigma_px: Annotated[float, Range(0, 1000, lo_open=True)] = 16.0
-    #: Where three or more references cover a pixel, a reference's score also halves at this
-    #: distance (0-255) from their per-pixel median: a misaligned reference disagrees with the others.
-    consensus_scale: Annotated[float, Range(0, 255, lo_open=True)] = 16.0
-    #: Distance (px) from a mesh cut or the render's border below which a pixel's score falls.
-    edge_distance_px: Annotated[float, Range(0, 1000)] = 16.0
-    #: Viewing-direction change (deg, target ray vs. source ray at the surface) at which a
-    #: reference's score halves.
-    angle_scale_deg: Annotated[float, Range(0, 180, lo_open=True)] = 30.0
-    #: A reference's candidate region keeps the pixels whose score is at least this fraction of
-    #: the best reference's there (the seam is searched only inside such overlaps).
-    candidate_ratio: Annotated[float, Range(0, 1)] = 0.5
-    #: References processed at once (threads); 1 runs them one after the other. 2 on 2 cores:
-    #: three 1280x720 references 10.7 -> 8.2 s, two 8.0 -> 5.5 s (benchmarks/multiref.py).
-    parallel: Annotated[int, Range(1, 64)] = 2
+    seams: Literal["graphcut", "feather", "blend"] = setting(
+        "feather",
+        'How references\' regions meet: "feather" (per-pixel best reference, blended over ``feather_px``), '
+        '"graphcut" (OpenCV\'s colour-gradient graph-cut seams between the overlapping references, then the '
+        'same feather) or "blend" (score-weighted average). On the 7 multi-reference DEV sets feather gave '
+        "the best mean hole PSNR (benchmarks: docs/results.md).",
+    )
+    blend_power: Annotated[float, Range(0, 16)] = setting(
+        2.0,
+        "``blend``: the references covering a pixel averaged with weights score ** blend_power.",
+    )
+    feather_px: Annotated[float, Range(0, 1000)] = setting(
+        6.0,
+        "Width (px) of the blend across the boundary between two references' regions.",
+    )
+    band_error_scale: Annotated[float, Range(0, 255, lo_open=True)] = setting(2.0, _BAND_AGREEMENT)
+    band_sigma_px: Annotated[float, Range(0, 1000, lo_open=True)] = setting(16.0, _BAND_AGREEMENT)
+    consensus_scale: Annotated[float, Range(0, 255, lo_open=True)] = setting(
+        16.0,
+        "Where three or more references cover a pixel, a reference's score also halves at this distance "
+        "(0-255) from their per-pixel median: a misaligned reference disagrees with the others.",
+    )
+    edge_distance_px: Annotated[float, Range(0, 1000)] = setting(
+        16.0,
+        "Distance (px) from a mesh cut or the render's border below which a pixel's score falls.",
+    )
+    angle_scale_deg: Annotated[float, Range(0, 180, lo_open=True)] = setting(
+        30.0,
+        "Viewing-direction change (deg, target ray vs. source ray at the surface) at which a reference's "
+        "score halves.",
+    )
+    candidate_ratio: Annotated[float, Range(0, 1)] = setting(
+        0.5,
+        "A reference's candidate region keeps the pixels whose score is at least this fraction of the best "
+        "reference's there (the seam is searched only inside such overlaps).",
+    )
+    parallel: Annotated[int, Range(1, 64)] = setting(
+        2,
+        "References processed at once (threads); 1 runs them one after the other. 2 on 2 cores: three "
+        "1280x720 references 10.7 -> 8.2 s, two 8.0 -> 5.5 s (benchmarks/multiref.py).",
+    )
 
 
 @dataclass
@@ -475,18 +701,28 @@ class FillConfig:
     inpaint: InpaintConfig = field(default_factory=InpaintConfig)
     refine: RefineConfig = field(default_factory=RefineConfig)
     fusion: FusionConfig = field(default_factory=FusionConfig)
-    #: Geometry (matching, pose, depth, optimisation) runs with the long side capped at this (px);
-    #: rendering and compositing run at the input resolution.
-    working_max_side: Annotated[int, Range(64, 16384)] = 1280
-    #: Inputs with more pixels than this are refused (decompression-bomb guard).
-    max_pixels: Annotated[int, Range(4096, 1_000_000_000)] = 60_000_000
-    #: Masks covering more than this fraction of the target are refused.
-    max_mask_fraction: Annotated[float, Range(0, 1, lo_open=True)] = 0.9
-    #: Images with a side under this (px) are refused.
-    min_side_px: Annotated[int, Range(16, 4096)] = 64
-    #: Wall-clock budget (s) of one whole fill, checked as each stage starts (geofill.progress);
-    #: generous: the paper solver alone can take an hour on a CPU.
-    time_budget_s: Annotated[float, Range(1, 1e6)] = 7200.0
+    working_max_side: Annotated[int, Range(64, 16384)] = setting(
+        1280,
+        "Geometry (matching, pose, depth, optimisation) runs with the long side capped at this (px); "
+        "rendering and compositing run at the input resolution.",
+    )
+    max_pixels: Annotated[int, Range(4096, 1_000_000_000)] = setting(
+        60_000_000,
+        "Inputs with more pixels than this are refused (decompression-bomb guard).",
+    )
+    max_mask_fraction: Annotated[float, Range(0, 1, lo_open=True)] = setting(
+        0.9,
+        "Masks covering more than this fraction of the target are refused.",
+    )
+    min_side_px: Annotated[int, Range(16, 4096)] = setting(
+        64,
+        "Images with a side under this (px) are refused.",
+    )
+    time_budget_s: Annotated[float, Range(1, 1e6)] = setting(
+        7200.0,
+        "Wall-clock budget (s) of one whole fill, checked as each stage starts (geofill.progress); "
+        "generous: the paper solver alone can take an hour on a CPU.",
+    )
 
     def __post_init__(self) -> None:
         # Sections built directly through the Python API are checked like those read from JSON.

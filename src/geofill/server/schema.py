@@ -1,6 +1,7 @@
 """The fill configuration as the server shows it: one flat list of fields, and a pydantic model for
 the OpenAPI page, both derived from :class:`geofill.config.FillConfig` (its types, defaults and
-``#:`` comments), so that nothing is copied by hand and a new config key appears everywhere.
+each field's description, ``metadata["help"]``), so that nothing is copied by hand and a new config
+key appears everywhere.
 
 Validation is not done here: a request's config goes through ``FillConfig.updated`` like the CLI's
 ``--set``, so the server accepts exactly what the CLI accepts and its errors name the same keys."""
@@ -9,8 +10,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import inspect
-import re
 import types
 import typing
 from dataclasses import dataclass
@@ -33,8 +32,6 @@ LOCKED_KEYS = frozenset(
     }
 )
 
-_FIELD_LINE = re.compile(r"^\s*(\w+)\s*:")
-
 
 @dataclass(frozen=True)
 class ConfigField:
@@ -48,45 +45,6 @@ class ConfigField:
     description: str
     section: str  # "" for top-level keys
     locked: bool  # set by the server's operator only
-
-
-@functools.cache
-def _source_lines(path: str) -> tuple[str, ...]:
-    with open(path, encoding="utf-8") as f:
-        return tuple(f.read().splitlines())
-
-
-def _class_body(cls: type) -> list[str]:
-    """The lines of top-level class ``cls`` after its ``class`` line, up to the next top-level
-    statement. ``inspect.getsource`` parses the whole module for every class (14 ms each, 0.14 s
-    of the server's start for the config's sections); the config classes are all top-level."""
-    lines = _source_lines(inspect.getsourcefile(cls))
-    head = re.compile(rf"class {cls.__name__}\b")
-    start = next(i for i, line in enumerate(lines) if head.match(line)) + 1
-    end = next((i for i in range(start, len(lines)) if lines[i] and not lines[i][0].isspace()), len(lines))
-    return list(lines[start:end])
-
-
-@functools.cache
-def field_descriptions(cls: type) -> dict[str, str]:
-    """``#:`` comment block above each field of dataclass ``cls`` (a block shared by consecutive
-    fields with no comment of their own describes each of them)."""
-    out: dict[str, str] = {}
-    names = {f.name for f in dataclasses.fields(cls)}
-    pending: list[str] = []
-    current = ""
-    for line in _class_body(cls):
-        stripped = line.strip()
-        m = _FIELD_LINE.match(line)
-        if stripped.startswith("#:"):
-            pending.append(stripped[2:].strip())
-        elif m and m.group(1) in names:
-            if pending:
-                current, pending = " ".join(pending), []
-            out[m.group(1)] = current
-        else:  # a blank line, the docstring or a method ends a shared block
-            pending, current = [], ""
-    return out
 
 
 def _kind(tp: Any) -> tuple[str, bool, tuple[Any, ...]]:
@@ -113,7 +71,6 @@ def config_fields() -> tuple[ConfigField, ...]:
 
     def walk(cls: type, defaults: Any, prefix: str) -> None:
         hints = typing.get_type_hints(cls)
-        docs = field_descriptions(cls)
         for f in dataclasses.fields(cls):
             tp = hints[f.name]
             value = getattr(defaults, f.name)
@@ -124,7 +81,7 @@ def config_fields() -> tuple[ConfigField, ...]:
             key = f"{prefix}{f.name}"
             out.append(
                 ConfigField(
-                    key, kind, value, optional, choices, docs.get(f.name, ""), prefix[:-1], key in LOCKED_KEYS
+                    key, kind, value, optional, choices, f.metadata["help"], prefix[:-1], key in LOCKED_KEYS
                 )
             )
 
@@ -158,12 +115,11 @@ def apply_request_config(base: FillConfig, data: Any) -> FillConfig:
 
 @functools.cache
 def config_model() -> type:
-    """A pydantic model mirroring :class:`FillConfig` with its ``#:`` descriptions, for OpenAPI."""
+    """A pydantic model mirroring :class:`FillConfig` with its fields' descriptions, for OpenAPI."""
     from pydantic import Field, create_model
 
     def build(cls: type) -> type:
         hints = typing.get_type_hints(cls)
-        docs = field_descriptions(cls)
         defaults = cls()
         fields: dict[str, Any] = {}
         for f in dataclasses.fields(cls):
@@ -171,7 +127,8 @@ def config_model() -> type:
             if dataclasses.is_dataclass(tp):
                 fields[f.name] = (build(tp), Field(default_factory=tp, description=tp.__doc__))
             else:
-                fields[f.name] = (tp, Field(default=getattr(defaults, f.name), description=docs.get(f.name)))
+                default = getattr(defaults, f.name)
+                fields[f.name] = (tp, Field(default=default, description=f.metadata["help"]))
         return create_model(cls.__name__, __doc__=cls.__doc__, **fields)
 
     return build(FillConfig)
