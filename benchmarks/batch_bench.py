@@ -33,7 +33,7 @@ import numpy as np
 
 from geofill.batch import BatchSettings, items_from_folders, run_batch
 from geofill.config import FillConfig
-from geofill.evaluation.runner import load_pair, pair_mask
+from geofill.evaluation.pairs import load_pair, pair_mask
 
 ROOT = Path(__file__).resolve().parents[1]
 GEOFILL = [sys.executable, "-m", "geofill.cli"]

@@ -26,7 +26,7 @@ from geofill.config import FillConfig
 from geofill.depth import DepthContext, get_backend
 from geofill.depth.onnx import resolve_model
 from geofill.evaluation.metrics import psnr
-from geofill.evaluation.runner import Pair, load_pairs, pair_mask
+from geofill.evaluation.pairs import Pair, load_pairs, pair_mask
 from geofill.pipeline import fill
 from geofill.render import project_source_grid
 from geofill.synthetic import make_pair

@@ -23,7 +23,7 @@ import numpy as np
 
 from geofill.config import FillConfig
 from geofill.evaluation.metrics import psnr
-from geofill.evaluation.runner import load_pairs, pair_mask
+from geofill.evaluation.pairs import load_pairs, pair_mask
 from geofill.pipeline import fill
 
 PAIRS = Path(__file__).resolve().parents[2] / "shared" / "data" / "pairs"

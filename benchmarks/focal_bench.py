@@ -40,7 +40,7 @@ import numpy as np
 from geofill.camera import Intrinsics, default_focal_px, pose_errors_deg
 from geofill.config import FillConfig
 from geofill.evaluation.metrics import psnr
-from geofill.evaluation.runner import load_pairs, pair_mask
+from geofill.evaluation.pairs import load_pairs, pair_mask
 from geofill.focal import estimate_focal
 from geofill.match import match_pair
 from geofill.pipeline import fill

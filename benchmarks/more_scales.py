@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 
 from geofill.config import FillConfig
-from geofill.evaluation.runner import load_pairs, pair_mask
+from geofill.evaluation.pairs import load_pairs, pair_mask
 from geofill.match import match_pair
 from geofill.match.features import detect_sift, keypoint_mask, mutual_ratio_matches, to_gray_u8
 from geofill.match.ladder import verify_fundamental

@@ -42,7 +42,7 @@ from geofill.camera import Intrinsics, default_focal_px, pose_errors_deg
 from geofill.config import FillConfig, parse_overrides
 from geofill.depth.align import AlignedDepth
 from geofill.evaluation.metrics import psnr
-from geofill.evaluation.runner import load_pairs, pair_mask
+from geofill.evaluation.pairs import load_pairs, pair_mask
 from geofill.optimize import OptimizationResult, optimize_pose_depth
 from geofill.pipeline import ReferenceArtifacts, fill, prepare_fill, run_reference
 from geofill.synthetic import make_pair

@@ -18,7 +18,7 @@ import numpy as np
 from geofill.camera import pose_errors_deg
 from geofill.config import FillConfig, parse_overrides
 from geofill.evaluation.metrics import psnr
-from geofill.evaluation.runner import load_pairs, pair_mask
+from geofill.evaluation.pairs import load_pairs, pair_mask
 from geofill.pipeline import fill
 
 STAGES = ("match", "pose", "triangulate", "depth", "render", "composite")

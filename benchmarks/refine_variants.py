@@ -26,7 +26,7 @@ from geofill.composite.merge import merge_fill
 from geofill.config import FillConfig, parse_overrides
 from geofill.evaluation.baselines import BaselineError, homography_fill
 from geofill.evaluation.metrics import psnr
-from geofill.evaluation.runner import load_pairs, pair_mask
+from geofill.evaluation.pairs import load_pairs, pair_mask
 from geofill.pipeline import fill
 from geofill.refine import refine_render
 from geofill.render import RenderResult

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from geofill.config import FillConfig
-from geofill.evaluation.runner import load_pairs, pair_mask
+from geofill.evaluation.pairs import load_pairs, pair_mask
 from geofill.pipeline import ReferenceArtifacts, prepare_fill, run_reference, shared_focal
 
 SETS = Path(__file__).resolve().parents[2] / "shared" / "data" / "multiview"

@@ -90,7 +90,7 @@ def write_pair_files(folder: Path, target: np.ndarray, source: np.ndarray, hole:
 
 def write_inputs(size: tuple[int, int], pair_dir: str | None, folder: Path) -> None:
     """The pair files of one size: the synthetic scene, or the real pair ``pair_dir`` resized."""
-    from geofill.evaluation.runner import load_pair, pair_mask
+    from geofill.evaluation.pairs import load_pair, pair_mask
     from geofill.synthetic import make_pair
 
     w, h = size

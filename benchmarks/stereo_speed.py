@@ -25,7 +25,7 @@ import numpy as np
 from geofill.config import FillConfig
 from geofill.depth import DepthContext
 from geofill.depth.stereo import StereoDepth, complete, plane_sweep
-from geofill.evaluation.runner import load_pairs, pair_mask
+from geofill.evaluation.pairs import load_pairs, pair_mask
 from geofill.pipeline import fill
 from geofill.synthetic import make_pair
 

@@ -51,7 +51,7 @@ def _make_inputs(case: str, folder: Path) -> None:
     from speed import write_inputs, write_pair_files  # this folder is on sys.path when run as a script
 
     if case == "berlin":
-        from geofill.evaluation.runner import load_pair, pair_mask
+        from geofill.evaluation.pairs import load_pair, pair_mask
 
         pair = load_pair(PAIRS / BERLIN)
         write_pair_files(folder, pair.target, pair.source, pair_mask(pair, 0))

@@ -21,7 +21,7 @@ import numpy as np
 
 from geofill.camera import pose_errors_deg
 from geofill.config import FillConfig
-from geofill.evaluation.runner import load_pairs, pair_mask
+from geofill.evaluation.pairs import load_pairs, pair_mask
 from geofill.match import match_pair
 from geofill.prepare import prepare_views
 

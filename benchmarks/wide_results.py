@@ -27,7 +27,7 @@ from geofill.camera import pose_errors_deg
 from geofill.config import FillConfig
 from geofill.evaluation.baselines import homography_fill_detailed
 from geofill.evaluation.metrics import psnr
-from geofill.evaluation.runner import load_pairs, pair_mask
+from geofill.evaluation.pairs import load_pairs, pair_mask
 from geofill.pipeline import fill
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "pairs"

@@ -1,4 +1,4 @@
-"""Evaluation building blocks: brush-stroke masks, metrics, baselines, runner, CLI."""
+"""Evaluation building blocks: brush-stroke masks, metrics, baselines, methods, pairs, runner, CLI."""
 
 from __future__ import annotations
 
@@ -31,19 +31,11 @@ from geofill.evaluation.masks import (
     mask_seed,
     scaled_stroke_width,
 )
+from geofill.evaluation.methods import METHODS, MethodOutput, register_method, resolve_methods
 from geofill.evaluation.metrics import LPIPS_ENV, load_lpips, lpips_available, psnr, ssim
-from geofill.evaluation.runner import (
-    METHODS,
-    MethodOutput,
-    Pair,
-    group_value,
-    load_pairs,
-    register_method,
-    resolve_methods,
-    run_eval,
-    sweep,
-    wins,
-)
+from geofill.evaluation.pairs import Pair, group_value, load_pairs
+from geofill.evaluation.runner import run_eval, sweep
+from geofill.evaluation.tables import wins
 from geofill.refine import ColourGain, apply_colour_gain, fit_colour_gain
 
 REAL_PAIRS = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "pairs"

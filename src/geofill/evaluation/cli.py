@@ -10,16 +10,9 @@ import sys
 from ..config import FillConfig, parse_overrides
 from ..errors import GeoFillError
 from .masks import DEFAULT_AREA_RANGE, DEFAULT_STROKE_WIDTH_720P
-from .runner import (
-    DEFAULT_METHODS,
-    METHODS,
-    REFERENCE_MODES,
-    load_pairs,
-    register_geofill_methods,
-    resolve_methods,
-    run_eval,
-    sweep,
-)
+from .methods import DEFAULT_METHODS, METHODS, register_geofill_methods, resolve_methods
+from .pairs import load_pairs
+from .runner import REFERENCE_MODES, run_eval, sweep
 
 
 def _area_range(text: str) -> tuple[float, float]:
