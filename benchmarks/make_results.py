@@ -20,9 +20,9 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-PAIRS = ROOT.parent / "shared" / "data" / "pairs"
-MULTIVIEW = ROOT.parent / "shared" / "data" / "multiview"
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root: benchmarks.common
+from benchmarks.common import MULTIVIEW, PAIRS, ROOT
+
 OUT = ROOT / "docs" / "results.md"
 PY = sys.executable
 
@@ -69,16 +69,16 @@ SECTIONS = [
     ),
     Section(
         "shared_focal",
-        "One focal for all references (`benchmarks/shared_focal.py`)",
+        "One focal for all references (`benchmarks/studies/shared_focal.py`)",
         "The multi-reference sets with a true K: the target focal's error per pair (each reference alone) "
         "and from all pairs together (`intrinsics.shared_camera`).",
-        [PY, "benchmarks/shared_focal.py"],
+        [PY, "benchmarks/studies/shared_focal.py"],
     ),
     Section(
         "multiref",
-        "Time against the number of references (`benchmarks/multiref.py`)",
+        "Time against the number of references (`benchmarks/speed/multiref.py`)",
         "A 1280x720 ray-cast scene, 1-3 references, one after the other or two at once (`fusion.parallel`).",
-        [PY, "benchmarks/multiref.py"],
+        [PY, "benchmarks/speed/multiref.py"],
     ),
     Section(
         "sweep",
@@ -89,41 +89,51 @@ SECTIONS = [
     ),
     Section(
         "wide",
-        "Wide baselines: plain SIFT against the matching ladder (`benchmarks/wide_results.py`)",
+        "Wide baselines: plain SIFT against the matching ladder (`benchmarks/quality/wide_results.py`)",
         "The 5 `dev_wide_*` pairs and the 2 towers, 100-px brush holes (seed 0): each filled with the ladder "
         "capped at plain SIFT (`matching.max_rung=sift`, a fill before the ladder) and with the default "
         "ladder; fallback, rung, verified matches, the final pose's rotation / translation-direction error "
         "against the GT (deg; nan without GT), hole PSNR against the homography baseline, time.",
-        [PY, "benchmarks/wide_results.py"],
+        [PY, "benchmarks/quality/wide_results.py"],
     ),
     Section(
         "wide_ladder",
-        "The ladder on every DEV pair: rung and matching time (`benchmarks/wide_bench.py`)",
+        "The ladder on every DEV pair: rung and matching time (`benchmarks/studies/wide_bench.py`)",
         "Matching alone, plain SIFT against the ladder interleaved (3 repeats, median); on the pairs where "
         "plain SIFT verifies, the ladder must cost nothing and give the same matches.",
-        [PY, "benchmarks/wide_bench.py", "--repeats", "3"],
+        [PY, "benchmarks/studies/wide_bench.py", "--repeats", "3"],
     ),
     Section(
         "pairs",
-        "Pose accuracy and stage times per pair (`benchmarks/pairs.py`)",
+        "Pose accuracy and stage times per pair (`benchmarks/quality/pairs.py`)",
         "Default configuration. Pose errors against the GT pose where meta.json has one (TUM's pose is an "
         "estimate and is left out). Times in seconds.",
-        [PY, "benchmarks/pairs.py"],
+        [PY, "benchmarks/quality/pairs.py"],
     ),
     Section(
         "speed",
-        "Speed and memory by image size, per stage, before and after the speed work (`benchmarks/speed.py`)",
+        "Speed and memory by image size, per stage, before and after the speed work "
+        "(`benchmarks/speed/speed.py`)",
         "Synthetic pair, one fresh process per size reading and writing files like the CLI (medians of 3 "
         "runs); peak RSS is the process's VmHWM. `--baseline f15f0eb` runs the code as it was before the "
         "speed work (its defaults), alternating with this checkout run by run, and adds the ratios.",
-        [PY, "benchmarks/speed.py", "--sizes", "1280x720,3840x2160", "--runs", "3", "--baseline", "f15f0eb"],
+        [
+            PY,
+            "benchmarks/speed/speed.py",
+            "--sizes",
+            "1280x720,3840x2160",
+            "--runs",
+            "3",
+            "--baseline",
+            "f15f0eb",
+        ],
     ),
     Section(
         "speed_warm",
-        "The stages' own cost: a second fill in one process (`benchmarks/speed.py --warm`)",
+        "The stages' own cost: a second fill in one process (`benchmarks/speed/speed.py --warm`)",
         "As above at 1280x720, timing a second fill in each process: no numba start-up, lazy imports or "
         "first page faults. What the method costs after matching, whatever the process around it.",
-        [PY, "benchmarks/speed.py", "--sizes", "1280x720", "--runs", "3", "--warm"],
+        [PY, "benchmarks/speed/speed.py", "--sizes", "1280x720", "--runs", "3", "--warm"],
     ),
     Section(
         "refine_eval",
@@ -141,46 +151,46 @@ SECTIONS = [
     ),
     Section(
         "refine",
-        "Refinement variants on identical renders (`benchmarks/refine_variants.py`)",
+        "Refinement variants on identical renders (`benchmarks/studies/refine_variants.py`)",
         "Each pair rendered once (default pipeline, refinement off); every variant refines and merges that "
         "same render. Hole PSNR (dB) per pair; `feather` = 4-px feathered merge, no colour/flow.",
-        [PY, "benchmarks/refine_variants.py"],
+        [PY, "benchmarks/studies/refine_variants.py"],
     ),
     Section(
         "render",
-        "Mesh renderer speed and exactness (`benchmarks/render_bench.py`)",
+        "Mesh renderer speed and exactness (`benchmarks/speed/render_bench.py`)",
         "A 1280x720 ray-cast synthetic pair rendered with its exact depth and pose (1.8 M triangles).",
-        [PY, "benchmarks/render_bench.py"],
+        [PY, "benchmarks/speed/render_bench.py"],
     ),
     Section(
         "fitspace",
-        "Depth scale/offset fit: depth vs inverse-depth space (`benchmarks/depth_fit_space.py`)",
+        "Depth scale/offset fit: depth vs inverse-depth space (`benchmarks/studies/depth_fit_space.py`)",
         "GT depth of the GT-depth pairs given to the `file` backend as shifted relative inverse depth or as "
         "metric depth, aligned by the pipeline's own triangulated points, with the true intrinsics.",
-        [PY, "benchmarks/depth_fit_space.py"],
+        [PY, "benchmarks/studies/depth_fit_space.py"],
     ),
     Section(
         "fitspace_default",
         "Depth fit space, the pipeline's own intrinsics (`depth_fit_space.py --default-intrinsics`)",
         "As above, but the intrinsics are what the pipeline finds by itself (default prior, focal estimated "
         "from the pair, principal point at the centre): the setting a user without calibration gets.",
-        [PY, "benchmarks/depth_fit_space.py", "--default-intrinsics"],
+        [PY, "benchmarks/studies/depth_fit_space.py", "--default-intrinsics"],
     ),
     Section(
         "depth_eval",
-        "Depth accuracy per backend (`benchmarks/depth_eval.py`, issue 4)",
+        "Depth accuracy per backend (`benchmarks/studies/depth_eval.py`, issue 4)",
         "The paper's supplement depth table: AbsRel, RMS-log and delta<1.25 of the source depth the pipeline "
         "renders with (after its own scale/offset), over all valid pixels and over those that project into "
         "the hole; synthetic scenes (exact depth) and the real pairs with GT depth. `onnx`/`fused` need "
         "weights, which these machines cannot download: reported as unavailable.",
-        [PY, "benchmarks/depth_eval.py"],
+        [PY, "benchmarks/studies/depth_eval.py"],
     ),
     Section(
         "depth_eval_true_k",
         "Depth accuracy per backend with the true intrinsics (`depth_eval.py --true-intrinsics`)",
         "As above with the GT-depth pairs' calibrated K given as flags, so that the depth error is not "
         "mixed with the focal estimate's.",
-        [PY, "benchmarks/depth_eval.py", "--synthetic", "0", "--true-intrinsics"],
+        [PY, "benchmarks/studies/depth_eval.py", "--synthetic", "0", "--true-intrinsics"],
     ),
     Section(
         "depth_backends",
@@ -192,24 +202,25 @@ SECTIONS = [
     ),
     Section(
         "stereo_speed",
-        "Stereo backend time at 1280x720 (`benchmarks/stereo_speed.py`, issue 4)",
+        "Stereo backend time at 1280x720 (`benchmarks/speed/stereo_speed.py`, issue 4)",
         "Budget: 2 s on this 2-core machine.",
-        [PY, "benchmarks/stereo_speed.py"],
+        [PY, "benchmarks/speed/stereo_speed.py"],
     ),
     Section(
         "optimize_synthetic",
-        "Joint optimisation from a perturbed start, 1280x720 (`benchmarks/optimize_bench.py`, issue 5)",
+        "Joint optimisation from a perturbed start, 1280x720 "
+        "(`benchmarks/studies/optimize_bench.py`, issue 5)",
         "Exact depth and pose, start perturbed by 5 deg rotation, 10 deg translation direction, depth x1.2. "
         "`paper` = DiffGrad at a quarter of the paper's iteration limits (1000/1750/2250/2500; the full "
         "limits take up to an hour on one scene here). Objective = the finest level's (lower is better).",
-        [PY, "benchmarks/optimize_bench.py", "synthetic", "--scenes", "3", "--paper-scale", "0.25"],
+        [PY, "benchmarks/studies/optimize_bench.py", "synthetic", "--scenes", "3", "--paper-scale", "0.25"],
     ),
     Section(
         "optimize_real",
-        "Joint optimisation on the real pairs (`benchmarks/optimize_bench.py real`, issue 5)",
+        "Joint optimisation on the real pairs (`benchmarks/studies/optimize_bench.py real`, issue 5)",
         "Both solvers from the pipeline's own start (evaluation hole, seed 0); `paper` at a tenth of its "
         "iteration limits. Pose errors against the GT pose where meta.json has one (before = the start).",
-        [PY, "benchmarks/optimize_bench.py", "real", "--paper-scale", "0.1"],
+        [PY, "benchmarks/studies/optimize_bench.py", "real", "--paper-scale", "0.1"],
     ),
     Section(
         "optimize_eval",
@@ -220,7 +231,7 @@ SECTIONS = [
         "30.88 / 31.23; W_h only 31.20, W_e only 31.12, neither 30.95.",
         [
             PY,
-            "benchmarks/optimize_bench.py",
+            "benchmarks/studies/optimize_bench.py",
             "eval",
             "--pairs",
             str(PAIRS),
@@ -236,16 +247,16 @@ SECTIONS = [
     ),
     Section(
         "whole_process",
-        "Whole-process time against the homography baseline (`benchmarks/whole_process.py`)",
+        "Whole-process time against the homography baseline (`benchmarks/speed/whole_process.py`)",
         "`geofill fill`, `geofill --help`, `geofill config` and `geofill serve` as a user runs them, each "
         "fill paired with the standalone OpenCV SIFT + MAGSAC homography + colour-gain script "
-        "(`benchmarks/homography_baseline.py`) on the same files, and with the code before the speed "
+        "(`benchmarks/speed/homography_baseline.py`) on the same files, and with the code before the speed "
         "work (`--before f15f0eb`, its defaults) in the same rounds; medians of 7 runs after a warm-up. "
         "Both trees are byte-compiled first, as `pip install` leaves a package. The ratios to the "
         "baseline are the figures that carry over between machines (load average printed).",
         [
             PY,
-            "benchmarks/whole_process.py",
+            "benchmarks/speed/whole_process.py",
             "--runs",
             "7",
             "--cases",
@@ -256,36 +267,36 @@ SECTIONS = [
     ),
     Section(
         "speed_quality",
-        "Fill quality before and after the speed work (`benchmarks/eval_revisions.py`)",
+        "Fill quality before and after the speed work (`benchmarks/quality/eval_revisions.py`)",
         "`geofill eval` on the 23 DEV pairs with the code before the speed work (f15f0eb) and this "
         "checkout, mask seeds 0-2, hole PSNR changes per pair and seed.",
-        [PY, "benchmarks/eval_revisions.py", "--before", "f15f0eb", "--seeds", "0,1,2"],
+        [PY, "benchmarks/quality/eval_revisions.py", "--before", "f15f0eb", "--seeds", "0,1,2"],
     ),
     Section(
         "speed_quality_multiview",
-        "Several references before and after the speed work (`benchmarks/eval_revisions.py`)",
+        "Several references before and after the speed work (`benchmarks/quality/eval_revisions.py`)",
         "As above on the 7 multi-reference sets, the fill with all references (`geofill[all]`).",
-        [PY, "benchmarks/eval_revisions.py", "--before", "f15f0eb", "--seeds", "0,1,2"]
+        [PY, "benchmarks/quality/eval_revisions.py", "--before", "f15f0eb", "--seeds", "0,1,2"]
         + ["--pairs", str(MULTIVIEW), "--references", "all"],
     ),
     Section(
         "focal",
-        "Focal length from the pair (`benchmarks/focal_bench.py`, issue 7)",
+        "Focal length from the pair (`benchmarks/studies/focal_bench.py`, issue 7)",
         "Focal and pose accuracy per estimator on the GT pairs and rendered scenes, then whole fills with "
         "the evaluation's masks (seeds 0-2): fixed focal, estimated (default), refined in the "
         "optimisation, true K, and the fixed focal x0.98 / x1.02 (how much a 2 % focal change moves a fill).",
-        [PY, "benchmarks/focal_bench.py", "--psnr-seeds", "0,1,2"],
+        [PY, "benchmarks/studies/focal_bench.py", "--psnr-seeds", "0,1,2"],
     ),
     Section(
         "focal_curve",
-        "Fill PSNR against the focal length (`benchmarks/focal_bench.py --curve`, issue 7)",
+        "Fill PSNR against the focal length (`benchmarks/studies/focal_bench.py --curve`, issue 7)",
         "Hole PSNR per mask seed with the focal fixed at a grid of scales of the default, on the pair where "
         "the estimate lost most against the default (ETH3D terrace, no ground truth) and on two GT pairs; "
         "'estim.' is the default pipeline at the scale it chose. How far apart neighbouring focal lengths "
         "land is the noise floor of any per-pair comparison of two focal lengths.",
         [
             PY,
-            "benchmarks/focal_bench.py",
+            "benchmarks/studies/focal_bench.py",
             "--curve",
             "eth3d,berlin_01_02,livingroom_f2",
             "--psnr-seeds",
@@ -294,34 +305,43 @@ SECTIONS = [
     ),
     Section(
         "focal_refine",
-        "Focal refinement in the optimisation, synthetic (`benchmarks/optimize_bench.py focal`, issue 7)",
+        "Focal refinement in the optimisation, synthetic "
+        "(`benchmarks/studies/optimize_bench.py focal`, issue 7)",
         "Rendered scenes whose true focal is 0.8x / 1.25x the assumed default, filled with and without "
         "`optimize.refine_focal` (estimation off, so the refinement alone moves the focal).",
-        [PY, "benchmarks/optimize_bench.py", "focal", "--scenes", "3", "--set", "intrinsics.estimate=none"],
+        [
+            PY,
+            "benchmarks/studies/optimize_bench.py",
+            "focal",
+            "--scenes",
+            "3",
+            "--set",
+            "intrinsics.estimate=none",
+        ],
     ),
     Section(
         "batch",
-        "Throughput of many fills (`benchmarks/batch_bench.py`)",
+        "Throughput of many fills (`benchmarks/speed/batch_bench.py`)",
         "The 18 DEV pairs as one batch (eval holes, seed 0): a shell loop of `geofill fill`, `geofill batch` "
         "with 1 and 2 worker processes and on a local Ray instance, run back to back on the same machine "
         "load; peak RSS per worker process; per-item overhead of the local pool and of Ray.",
-        [PY, "benchmarks/batch_bench.py"],
+        [PY, "benchmarks/speed/batch_bench.py"],
     ),
     Section(
         "server",
-        "`geofill serve`: API overhead, memory, malformed requests (`benchmarks/server_bench.py`)",
+        "`geofill serve`: API overhead, memory, malformed requests (`benchmarks/speed/server_bench.py`)",
         "Over real HTTP against a `geofill serve` process with one worker: Fill -> result downloaded for a "
         "1280x720 synthetic pair against the CLI's pipeline time for the same fill (interleaved: the machine "
         "is shared, so only paired numbers compare); RSS of the server and its worker; 20 sequential fills; "
         "200 malformed requests.",
-        [PY, "benchmarks/server_bench.py"],
+        [PY, "benchmarks/speed/server_bench.py"],
     ),
     Section(
         "server_overhead",
-        "`geofill serve`: API against CLI time, more runs (`benchmarks/server_bench.py --repeats 6`)",
+        "`geofill serve`: API against CLI time, more runs (`benchmarks/speed/server_bench.py --repeats 6`)",
         "The first part of the section above alone, six interleaved pairs: the machine's load moves single "
         "runs by several seconds.",
-        [PY, "benchmarks/server_bench.py", "--repeats", "6", "--fills", "0", "--malformed", "0"],
+        [PY, "benchmarks/speed/server_bench.py", "--repeats", "6", "--fills", "0", "--malformed", "0"],
     ),
 ]
 

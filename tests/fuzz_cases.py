@@ -1,5 +1,5 @@
 """A generated corpus of malformed and adversarial ``geofill fill`` invocations, and the runner that
-classifies what the CLI did with each (used by tests/test_fuzz.py and benchmarks/fuzz_bench.py).
+classifies what the CLI did with each (used by tests/test_fuzz.py and benchmarks/quality/fuzz_bench.py).
 
 Families: input files (corrupt, truncated, zero-byte, header-only giants, odd pixel formats, EXIF
 orientations, odd paths), masks, depth files, configuration values and files, output paths, plus

@@ -29,7 +29,7 @@ def synthetic_matches(width, height, focal_scale, motion="orbit", source_focal_s
     verified SIFT matches. The default 0.5-unit orbit turns only 4.8 deg: its optical axes meet
     almost equidistantly from both centres, which is close to the critical configuration of
     equal-focal two-view calibration (Sturm 2001), and SIFT's localisation bias then moves the
-    estimate by up to 10 % (benchmarks/focal_bench.py)."""
+    estimate by up to 10 % (benchmarks/studies/focal_bench.py)."""
     f0 = default_focal_px(width, height)
     pair = make_pair(
         seed=seed,

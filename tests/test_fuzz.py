@@ -1,7 +1,7 @@
 """Fuzz suite: a generated corpus of malformed and adversarial inputs through the CLI (see
 tests/fuzz_cases.py). Every case ends in a fill (outside-hole pixels byte-identical for PNG/TIFF)
 or exactly one stderr line with its exit status and nothing written; no traceback, no hang; the
-same inputs give the same bytes. benchmarks/fuzz_bench.py runs a larger corpus."""
+same inputs give the same bytes. benchmarks/quality/fuzz_bench.py runs a larger corpus."""
 
 from __future__ import annotations
 

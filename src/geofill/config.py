@@ -137,9 +137,9 @@ class IntrinsicsConfig:
         "Focal-length estimation from the pair, after matching and before the pose (see "
         ":mod:`geofill.focal`): ``none`` keeps the prior (flag, EXIF or default: the paper's setting); "
         "``search`` profiles the robust Sampson cost of the best essential matrix over a focal scale "
-        "(default: best on the GT-pose pairs and synthetic scenes, benchmarks/focal_bench.py); ``bougnoux`` "
-        "is the closed form from F; ``auto`` combines the two. Focal lengths given by a flag are never "
-        "estimated; an EXIF focal is a prior the estimate may move within its uncertainty.",
+        "(default: best on the GT-pose pairs and synthetic scenes, benchmarks/studies/focal_bench.py); "
+        "``bougnoux`` is the closed form from F; ``auto`` combines the two. Focal lengths given by a flag "
+        "are never estimated; an EXIF focal is a prior the estimate may move within its uncertainty.",
     )
     shared_camera: Literal["auto", "yes", "no"] = setting(
         "auto",
@@ -170,7 +170,7 @@ class IntrinsicsConfig:
         0.1,
         "Relative focal error (1 sigma) the pair can never beat: what lens distortion, an off-centre "
         "principal point or a rolling shutter leave. Estimates on the GT pairs were 0-16 % off where more "
-        "than 70 matches (benchmarks/focal_bench.py).",
+        "than 70 matches (benchmarks/studies/focal_bench.py).",
     )
     search_max_matches: Annotated[int, Range(8, 100_000)] = setting(
         2000,
@@ -330,7 +330,7 @@ class GeometryConfig:
     fit_space: Literal["depth", "inverse"] = setting(
         "inverse",
         "Space of the affine depth fit. Inverse depth measured better on the GT-depth pairs "
-        "(benchmarks/depth_fit_space.py; docs/results.md) whatever the backend's native space.",
+        "(benchmarks/studies/depth_fit_space.py; docs/results.md) whatever the backend's native space.",
     )
 
 
@@ -684,7 +684,7 @@ class FusionConfig:
     parallel: Annotated[int, Range(1, 64)] = setting(
         2,
         "References processed at once (threads); 1 runs them one after the other. 2 on 2 cores: three "
-        "1280x720 references 10.7 -> 8.2 s, two 8.0 -> 5.5 s (benchmarks/multiref.py).",
+        "1280x720 references 10.7 -> 8.2 s, two 8.0 -> 5.5 s (benchmarks/speed/multiref.py).",
     )
 
 

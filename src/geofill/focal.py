@@ -18,7 +18,7 @@ matches. Singular whenever the optical axes are coplanar, which includes every y
 
 ``auto``: the precision-weighted mean of whichever of the two succeed.
 
-Measured (benchmarks/focal_bench.py): the search is the most accurate on the GT pairs and the
+Measured (benchmarks/studies/focal_bench.py): the search is the most accurate on the GT pairs and the
 rendered scenes; Bougnoux is biased on real pairs and fails on coplanar axes.
 
 Two views determine the focal only when the motion allows it: parallel optical axes (rectified

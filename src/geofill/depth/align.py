@@ -4,7 +4,7 @@ Where the fit lives: inverse depth by default, whatever the backend's native spa
 (i) learned networks' ambiguity is affine in inverse depth (an offset in depth space cannot express
 their shift), (ii) a residual in 1/z is proportional to the pixel displacement it causes for a given
 baseline (disparity = f b / z), so least squares there weighs points by what the render sees, and
-(iii) measured on the four GT-depth pairs (benchmarks/depth_fit_space.py), it gave a lower AbsRel
+(iii) measured on the four GT-depth pairs (benchmarks/studies/depth_fit_space.py), it gave a lower AbsRel
 (0.068 vs 0.075) and an equal or higher hole PSNR on every pair with the true intrinsics, and +0.9 dB
 mean hole PSNR with the default intrinsics guess, since an inverse-depth offset also absorbs
 principal-point (stereo ``doffs``) errors.

@@ -373,7 +373,7 @@ def confidence(ncc: np.ndarray, margin: np.ndarray) -> np.ndarray:
     """Confidence in [0, 1] of a winner with aggregated NCC ``ncc`` that beats its best rival by
     ``margin``: the smaller of two ramps, NCC 0.2 -> 0.8 and margin 0 -> 0.2, so 0.5 means NCC >= 0.5
     and margin >= 0.1. On the synthetic scenes and GT-depth pairs lower thresholds added pixels
-    mostly wrong by > 10 % (benchmarks/depth_eval.py; docs/results.md)."""
+    mostly wrong by > 10 % (benchmarks/studies/depth_eval.py; docs/results.md)."""
     return np.minimum(np.clip((ncc - 0.2) / 0.6, 0, 1), np.clip(margin / 0.2, 0, 1))
 
 

@@ -28,7 +28,7 @@ MAX_NOTES = 200
 POLL_S = 0.2
 #: A slot starts its worker process this long after the server starts, or when the first job comes
 #: if sooner: started together, the worker's imports (another process on the same two cores) made
-#: the page 0.02 s later (0.29 -> 0.27 s until it is served, `benchmarks/whole_process.py`), and a
+#: the page 0.02 s later (0.29 -> 0.27 s until it is served, `benchmarks/speed/whole_process.py`), and a
 #: first fill rarely comes within a second of the start.
 WORKER_START_DELAY_S = 1.0
 

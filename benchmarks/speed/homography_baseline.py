@@ -3,12 +3,12 @@ one MAGSAC++ homography, the source warped into the target, a per-channel colour
 known ring around the hole, pasted into the hole (Telea for hole pixels the warp does not reach).
 
 It imports only OpenCV and NumPy, so its wall time is what the simplest useful reference fill costs
-on this machine: ``benchmarks/whole_process.py`` runs it interleaved with ``geofill fill`` and
+on this machine: ``benchmarks/speed/whole_process.py`` runs it interleaved with ``geofill fill`` and
 reports geofill's time as a ratio to it, which cancels the machine's load. It is also a quick
 comparison for users (``geofill eval --methods homography`` is the evaluation's own version, on
 geofill's matcher).
 
-    python benchmarks/homography_baseline.py --target t.jpg --mask m.png --source s.jpg -o out.png
+    python benchmarks/speed/homography_baseline.py --target t.jpg --mask m.png --source s.jpg -o out.png
 """
 
 from __future__ import annotations

@@ -1,8 +1,8 @@
 """Focal-length estimation (issue 7): accuracy of each method, its effect on the pose and on the fill.
 
-    .venv/bin/python benchmarks/focal_bench.py [--pairs ../shared/data/pairs] [--seeds 3]
-                                               [--skip-synthetic] [--skip-psnr] [--psnr-seeds 0,1,2]
-    .venv/bin/python benchmarks/focal_bench.py --curve eth3d,berlin_01_02 [--curve-scales 0.9,1,1.1]
+    .venv/bin/python benchmarks/studies/focal_bench.py [--pairs ../shared/data/pairs] [--seeds 3]
+                                                       [--skip-synthetic] [--skip-psnr] [--psnr-seeds 0,1,2]
+    .venv/bin/python benchmarks/studies/focal_bench.py --curve eth3d,berlin_01_02 [--curve-scales 0.9,1,1.1]
 
 1. Real pairs with ground-truth K (meta.json K_target): true focal, the default prior, each
    method's estimate (intrinsics.estimate = none / search / bougnoux / auto) with its focal error,
@@ -48,13 +48,16 @@ from geofill.pose import estimate_pose
 from geofill.prepare import prepare_views
 from geofill.synthetic import make_pair
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root: benchmarks.common
+from benchmarks.common import PAIRS
+
 METHODS = ("none", "search", "bougnoux", "auto")
 CFG = FillConfig()
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--pairs", default=str(Path(__file__).resolve().parents[2] / "shared" / "data" / "pairs"))
+    ap.add_argument("--pairs", default=str(PAIRS))
     ap.add_argument("--seeds", type=int, default=3, help="synthetic seeds per configuration")
     ap.add_argument("--skip-synthetic", action="store_true")
     ap.add_argument("--skip-psnr", action="store_true", help="skip the hole-PSNR comparison (slow)")

@@ -1,7 +1,8 @@
 """Fill quality of this checkout against an earlier revision: ``geofill eval`` on the DEV pairs for
 both, over several mask seeds, then the per-pair and per-seed changes (``compare_eval.py``).
 
-    .venv/bin/python benchmarks/eval_revisions.py --before REV [--seeds 0,1,2] [--pairs DIR] [--keep DIR]
+    .venv/bin/python benchmarks/quality/eval_revisions.py --before REV [--seeds 0,1,2] [--pairs DIR]
+        [--keep DIR]
         [--references all]   # multi-reference sets (../shared/data/multiview): the fill with all references
 
 The earlier revision's ``src`` is exported to a temporary folder and run with ``PYTHONPATH`` (its own
@@ -19,7 +20,8 @@ import sys
 import tempfile
 from pathlib import Path
 
-from whole_process import PAIRS, _export_src  # this folder is on sys.path when run as a script
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root: benchmarks.common
+from benchmarks.common import PAIRS, export_src
 
 HERE = Path(__file__).resolve().parent
 
@@ -45,7 +47,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(args.keep or tmp)
-        before = args.before if Path(args.before).is_dir() else _export_src(args.before, Path(tmp))
+        before = args.before if Path(args.before).is_dir() else export_src(args.before, Path(tmp))
         for seed in args.seeds.split(","):
             _eval(work / f"before_s{seed}", args, seed, before)
             _eval(work / f"after_s{seed}", args, seed, None)

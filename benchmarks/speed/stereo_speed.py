@@ -8,7 +8,7 @@ the process, OpenCV's worker threads included: steadier than wall time on a shar
 first backend call of the process is timed apart: it loads the compiled kernels from numba's
 cache (or compiles them, on a cold cache). Timings on a shared machine are provisional.
 
-    .venv/bin/python benchmarks/stereo_speed.py [--repeat 3]
+    .venv/bin/python benchmarks/speed/stereo_speed.py [--repeat 3]
 """
 
 from __future__ import annotations
@@ -29,7 +29,9 @@ from geofill.evaluation.pairs import load_pairs, pair_mask
 from geofill.pipeline import fill
 from geofill.synthetic import make_pair
 
-PAIRS = Path(__file__).resolve().parents[2] / "shared" / "data" / "pairs"
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root: benchmarks.common
+from benchmarks.common import PAIRS
+
 REAL = ("dev_cotracker_apple_video", "dev_opensfm_berlin_01_02", "dev_mast3r_nle_tower_a")
 
 

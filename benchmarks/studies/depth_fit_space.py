@@ -9,7 +9,7 @@ inverse-depth space, with the pair's true intrinsics (``--default-intrinsics``: 
 Printed: AbsRel and delta<1.25 of the aligned depth against GT (pose units brought to metres with
 the GT baseline), and the hole PSNR of the fill.
 
-    .venv/bin/python benchmarks/depth_fit_space.py
+    .venv/bin/python benchmarks/studies/depth_fit_space.py
 """
 
 from __future__ import annotations
@@ -26,7 +26,8 @@ from geofill.evaluation.metrics import psnr
 from geofill.evaluation.pairs import load_pairs, pair_mask
 from geofill.pipeline import fill
 
-PAIRS = Path(__file__).resolve().parents[2] / "shared" / "data" / "pairs"
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root: benchmarks.common
+from benchmarks.common import PAIRS
 
 
 def depth_metrics(pred: np.ndarray, gt: np.ndarray) -> tuple[float, float]:

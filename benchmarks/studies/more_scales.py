@@ -2,7 +2,7 @@
 matched with the loose rung's ratio and verified as strictly, against what the ladder's own rungs
 verify, on the pairs where plain SIFT is weak (100-px brush holes, seed 0).
 
-    .venv/bin/python benchmarks/more_scales.py [--pairs DIR ...]
+    .venv/bin/python benchmarks/studies/more_scales.py [--pairs DIR ...]
 
 Prints verified matches and seconds per factor pair next to the ladder's result. Figures, not a test.
 """
@@ -24,7 +24,9 @@ from geofill.match.features import detect_sift, keypoint_mask, mutual_ratio_matc
 from geofill.match.ladder import verify_fundamental
 from geofill.prepare import prepare_views
 
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "pairs"
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root: benchmarks.common
+from benchmarks.common import PAIRS
+
 FACTORS = ((1.0, 0.5), (0.5, 1.0), (1.0, 0.7), (0.7, 1.0), (0.5, 0.5), (1.0, 1.4), (1.4, 1.0))
 
 
@@ -45,7 +47,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     cfg = FillConfig()
     mc = cfg.matching
-    for pair in load_pairs(args.pairs or [str(DATA)]):
+    for pair in load_pairs(args.pairs or [str(PAIRS)]):
         hole = pair_mask(pair, 0, 100.0)
         views = prepare_views(pair.target, hole, pair.source, cfg, pair.exif.target, pair.exif.source)
         target = views.target.copy()

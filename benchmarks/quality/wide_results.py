@@ -2,7 +2,7 @@
 at its first rung: what a fill did before the ladder) and with the default ladder, against the
 homography baseline, on the evaluation's 100-px brush holes (seed 0).
 
-    .venv/bin/python benchmarks/wide_results.py [--pairs DIR ...] [--seed 0]
+    .venv/bin/python benchmarks/quality/wide_results.py [--pairs DIR ...] [--seed 0]
 
 Per pair and variant: whether the fill used the reference or fell back to single-image inpainting,
 the rung its matches came from, verified matches, the joint optimisation's status (``skipped``:
@@ -30,7 +30,9 @@ from geofill.evaluation.metrics import psnr
 from geofill.evaluation.pairs import load_pairs, pair_mask
 from geofill.pipeline import fill
 
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "pairs"
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root: benchmarks.common
+from benchmarks.common import PAIRS
+
 WIDE = ("dev_wide_", "dev_mast3r_nle_tower_")
 
 
@@ -51,7 +53,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args(argv)
-    pairs = load_pairs(args.pairs or [str(DATA)])
+    pairs = load_pairs(args.pairs or [str(PAIRS)])
     if not args.pairs:
         pairs = [p for p in pairs if p.id.startswith(WIDE)]
     cfg = FillConfig()

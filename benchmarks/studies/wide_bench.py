@@ -3,7 +3,7 @@ interleaved in one run (paired timings on a shared CPU), with the rung used, ver
 hole support, and the rotation error of the essential matrix fitted with the true K where the
 pair has a ground-truth pose.
 
-    .venv/bin/python benchmarks/wide_bench.py [--pairs DIR ...] [--repeats 3] [--seed 0]
+    .venv/bin/python benchmarks/studies/wide_bench.py [--pairs DIR ...] [--repeats 3] [--seed 0]
 
 Holes are the evaluation's brush strokes (100 px at 720p, seed 0). Figures, not a test.
 """
@@ -25,7 +25,8 @@ from geofill.evaluation.pairs import load_pairs, pair_mask
 from geofill.match import match_pair
 from geofill.prepare import prepare_views
 
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "pairs"
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root: benchmarks.common
+from benchmarks.common import PAIRS
 
 
 def rotation_error_deg(pair, m, views) -> float:
@@ -64,7 +65,7 @@ def main(argv: list[str] | None = None) -> int:
     head = ("variant", "rung", "verified", "support", "R_err", "time_s")
     print(f"{'pair':<40s} " + " ".join(f"{h:>8s}" for h in head))
     ratios = []
-    for pair in load_pairs(args.pairs or [str(DATA)]):
+    for pair in load_pairs(args.pairs or [str(PAIRS)]):
         hole = pair_mask(pair, args.seed, 100.0)
         views = prepare_views(pair.target, hole, pair.source, cfg, pair.exif.target, pair.exif.source)
         target = views.target.copy()

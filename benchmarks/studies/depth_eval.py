@@ -8,7 +8,8 @@ over all valid pixels and over the source pixels whose GT 3D point projects into
 (the ones the fill needs). Also printed: the hole PSNR of the fill and, for ``stereo``, the fraction
 of source pixels the sweep was confident about.
 
-    .venv/bin/python benchmarks/depth_eval.py [--synthetic N] [--true-intrinsics] [--backends sparse,stereo]
+    .venv/bin/python benchmarks/studies/depth_eval.py [--synthetic N] [--true-intrinsics]
+        [--backends sparse,stereo]
 """
 
 from __future__ import annotations
@@ -32,7 +33,8 @@ from geofill.render import project_source_grid
 from geofill.synthetic import make_pair
 from geofill.weights import WeightsUnavailable
 
-PAIRS = Path(__file__).resolve().parents[2] / "shared" / "data" / "pairs"
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root: benchmarks.common
+from benchmarks.common import PAIRS
 
 
 @dataclass

@@ -2,7 +2,7 @@
 ``--jobs 2``, ``--ray local``) on the DEV pairs, peak RSS per worker, and the per-item overhead of
 the local pool and of Ray.
 
-    .venv/bin/python benchmarks/batch_bench.py [--pairs ../shared/data/pairs] [--limit N] [--rounds R]
+    .venv/bin/python benchmarks/speed/batch_bench.py [--pairs ../shared/data/pairs] [--limit N] [--rounds R]
 
 Each pair's target and source, with the evaluation hole of ``geofill eval`` (seed 0), become one
 batch item (images/<pair>, masks/<pair>.png, refs/<pair>/ in a temporary folder, files linked, not
@@ -21,10 +21,8 @@ import io
 import json
 import os
 import statistics
-import subprocess
 import sys
 import tempfile
-import time
 from collections import Counter, defaultdict
 from pathlib import Path
 
@@ -35,7 +33,9 @@ from geofill.batch import BatchSettings, items_from_folders, run_batch
 from geofill.config import FillConfig
 from geofill.evaluation.pairs import load_pair, pair_mask
 
-ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root: benchmarks.common
+from benchmarks.common import PAIRS, timed_child
+
 GEOFILL = [sys.executable, "-m", "geofill.cli"]
 MODES = {
     "shell loop of fill": None,
@@ -73,18 +73,6 @@ def make_shoot(pairs: list[Path], root: Path) -> list[str]:
     return [p.name for p in pairs]
 
 
-def _run(cmd: list[str]) -> tuple[float, float]:
-    """Wall seconds and the child's peak RSS (MiB) of one command."""
-    t0 = time.perf_counter()
-    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    _, status, usage = os.wait4(proc.pid, 0)
-    wall = time.perf_counter() - t0
-    proc.returncode = os.waitstatus_to_exitcode(status)
-    if proc.returncode != 0:
-        raise RuntimeError(f"{' '.join(cmd)} exited {proc.returncode}: {proc.stderr.read().decode()[-2000:]}")
-    return wall, usage.ru_maxrss / 1024.0
-
-
 def run_shell_loop(root: Path, names: list[str], out: Path) -> dict:
     out.mkdir()
     wall, rss = 0.0, []
@@ -93,7 +81,7 @@ def run_shell_loop(root: Path, names: list[str], out: Path) -> dict:
         source = next((root / "refs" / name).iterdir())
         cmd = [*GEOFILL, "fill", "--target", str(target), "--mask", str(root / "masks" / f"{name}.png")]
         cmd += ["--source", str(source), "-o", str(out / f"{name}.png"), "-q", "--allow-fallback"]
-        w, r = _run(cmd)
+        w, r = timed_child(cmd)
         wall += w
         rss.append(r)
     return {"wall_s": wall, "items": len(names), "peak_rss_mib": max(rss), "workers": len(rss)}
@@ -102,7 +90,7 @@ def run_shell_loop(root: Path, names: list[str], out: Path) -> dict:
 def run_batch_command(root: Path, out: Path, extra: list[str]) -> dict:
     cmd = [*GEOFILL, "batch", "--images", str(root / "images"), "--masks", str(root / "masks")]
     cmd += ["--sources-per-image", str(root / "refs"), "--out", str(out), "-q", "--allow-fallback", *extra]
-    wall, _ = _run(cmd)
+    wall, _ = timed_child(cmd)
     records = [json.loads(line) for line in (out / "results.jsonl").read_text().splitlines()]
     per_worker: dict[int, float] = defaultdict(float)
     for r in records:
@@ -161,7 +149,7 @@ def print_throughput(
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--pairs", type=Path, default=ROOT.parent / "shared" / "data" / "pairs")
+    ap.add_argument("--pairs", type=Path, default=PAIRS)
     ap.add_argument("--limit", type=int, help="first N DEV pairs only")
     ap.add_argument("--rounds", type=int, default=1)
     ap.add_argument("--modes", default=",".join(MODES), help="comma-separated subset of: " + ", ".join(MODES))

@@ -10,7 +10,7 @@
 4. ``--malformed`` malformed requests (bad multipart, wrong types, huge headers, unknown and
    path-like job ids, a client that disconnects mid-upload): how many answers are >= 500.
 
-Run: ``.venv/bin/python benchmarks/server_bench.py [--repeats 3] [--fills 20] [--malformed 200]``
+Run: ``.venv/bin/python benchmarks/speed/server_bench.py [--repeats 3] [--fills 20] [--malformed 200]``
 """
 
 from __future__ import annotations
@@ -34,6 +34,9 @@ import psutil
 from PIL import Image
 
 from geofill.synthetic import make_pair
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root: benchmarks.common
+from benchmarks.common import timed_child
 
 GEOFILL = str(Path(sys.executable).with_name("geofill"))
 
@@ -131,13 +134,11 @@ def cli_fill(data: dict[str, bytes], work: Path) -> tuple[float, float]:
     for name, blob in data.items():
         (work / f"{name}.png").write_bytes(blob)
     debug = work / "debug"
-    t0 = time.perf_counter()
-    subprocess.run(
+    wall, _ = timed_child(
         [GEOFILL, "fill", "--target", str(work / "target.png"), "--mask", str(work / "mask.png"),
          "--source", str(work / "source.png"), "-o", str(work / "out.png"), "--debug-dir", str(debug), "-q"],
-        check=True, env=dict(os.environ, HF_HUB_OFFLINE="1"),
+        env=dict(os.environ, HF_HUB_OFFLINE="1"),
     )  # fmt: skip
-    wall = time.perf_counter() - t0
     report = json.loads((debug / "report.json").read_text())
     return sum(report["timings_s"].values()), wall
 

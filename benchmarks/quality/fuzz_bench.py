@@ -2,8 +2,8 @@
 number of cases by outcome (target: 0 tracebacks, hangs, partial outputs, changed outside-hole
 pixels, invalid configs accepted), by family, and the time taken.
 
-    .venv/bin/python benchmarks/fuzz_bench.py               # about 300 cases
-    .venv/bin/python benchmarks/fuzz_bench.py --mutations 400 --seed 1
+    .venv/bin/python benchmarks/quality/fuzz_bench.py               # about 300 cases
+    .venv/bin/python benchmarks/quality/fuzz_bench.py --mutations 400 --seed 1
 
 The corpus and the runner are tests/fuzz_cases.py (tests/test_fuzz.py runs a smaller one). Cases
 run in this process with a SIGALRM watchdog (``--timeout`` s each)."""
@@ -17,7 +17,7 @@ import time
 from collections import Counter
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "tests"))
 from fuzz_cases import OUTCOMES, Corpus, run_case
 
 

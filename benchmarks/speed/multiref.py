@@ -1,6 +1,6 @@
 """Time of a fill against the number of references, one after the other or two at once.
 
-    .venv/bin/python benchmarks/multiref.py [--size 1280x720] [--repeat 3]
+    .venv/bin/python benchmarks/speed/multiref.py [--size 1280x720] [--repeat 3]
 
 A ray-cast scene (:func:`geofill.synthetic.make_views`) with three references (left, right, and a
 step forward); each configuration is filled ``--repeat`` times in this process after one warm-up

@@ -1,7 +1,7 @@
 """Time the mesh renderer at 1280x720 (the issue's budget: <= 0.5 s) on a ray-cast synthetic pair
 rendered with its exact depth and pose, and check what it reproduces.
 
-    .venv/bin/python benchmarks/render_bench.py [--width 1280 --height 720 --repeat 5]
+    .venv/bin/python benchmarks/speed/render_bench.py [--width 1280 --height 720 --repeat 5]
 
 Prints, for the whole target view and for the hole's window (what the pipeline rasterises): the
 median wall time of ``render_mesh`` (numba compiled beforehand), of ``RenderResult.sample``, the

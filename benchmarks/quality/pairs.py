@@ -1,7 +1,7 @@
 """Run the fill on every real pair and print, per pair: verified matches, pose inliers, pose error
 against the ground-truth pose where meta.json has one, hole PSNR, and per-stage wall time; then medians.
 
-    .venv/bin/python benchmarks/pairs.py [--pairs ../shared/data/pairs] [--set key=value ...]
+    .venv/bin/python benchmarks/quality/pairs.py [--pairs ../shared/data/pairs] [--set key=value ...]
 
 Holes are the evaluation's deterministic brush-stroke masks (seed 0). Figures, not a test.
 """
@@ -21,12 +21,15 @@ from geofill.evaluation.metrics import psnr
 from geofill.evaluation.pairs import load_pairs, pair_mask
 from geofill.pipeline import fill
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root: benchmarks.common
+from benchmarks.common import PAIRS
+
 STAGES = ("match", "pose", "triangulate", "depth", "render", "composite")
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--pairs", default=str(Path(__file__).resolve().parents[2] / "shared" / "data" / "pairs"))
+    ap.add_argument("--pairs", default=str(PAIRS))
     ap.add_argument("--set", action="append", metavar="KEY=VALUE", help="config override (repeatable)")
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args(argv)

@@ -1,6 +1,6 @@
 """One focal for all references vs. one per pair, on the multi-reference sets with a true K.
 
-    .venv/bin/python benchmarks/shared_focal.py [--sets ../shared/data/multiview]
+    .venv/bin/python benchmarks/studies/shared_focal.py [--sets ../shared/data/multiview]
 
 Every set's images come from one camera. Per set: the target focal's error (% of the true one)
 of the per-pair estimate of each reference (the focal stage alone), and of the estimate from all
@@ -20,7 +20,8 @@ from geofill.config import FillConfig
 from geofill.evaluation.pairs import load_pairs, pair_mask
 from geofill.pipeline import ReferenceArtifacts, prepare_fill, run_reference, shared_focal
 
-SETS = Path(__file__).resolve().parents[2] / "shared" / "data" / "multiview"
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root: benchmarks.common
+from benchmarks.common import MULTIVIEW
 
 
 def _error_pct(art: ReferenceArtifacts, f_true: float) -> float:
@@ -31,7 +32,7 @@ def _error_pct(art: ReferenceArtifacts, f_true: float) -> float:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--sets", default=str(SETS))
+    ap.add_argument("--sets", default=str(MULTIVIEW))
     args = ap.parse_args(argv)
     cfg = FillConfig()
     per_pair_all, shared_all = [], []

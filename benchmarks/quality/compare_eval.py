@@ -1,6 +1,6 @@
 """Hole-PSNR changes per pair between two sets of ``geofill eval`` runs, over one or several mask seeds.
 
-    .venv/bin/python benchmarks/compare_eval.py BEFORE AFTER [--seeds 0,1,2] [--method geofill]
+    .venv/bin/python benchmarks/quality/compare_eval.py BEFORE AFTER [--seeds 0,1,2] [--method geofill]
 
 BEFORE and AFTER are eval output folders (or their ``results.csv``); ``{seed}`` in them is replaced by
 every seed of ``--seeds`` to find that seed's run (without it, the one run is compared). One seed's

@@ -11,7 +11,7 @@ other code (a git revision of this checkout, exported to a temporary folder, or 
 on the same inputs, alternating with this one run by run so that load from other jobs falls on
 both alike, and adds its medians and the ratio (this / baseline).
 
-    .venv/bin/python benchmarks/speed.py [--sizes 1280x720,3840x2160] [--pair ../shared/data/pairs/X]
+    .venv/bin/python benchmarks/speed/speed.py [--sizes 1280x720,3840x2160] [--pair ../shared/data/pairs/X]
     [--runs 3] [--warm] [--baseline REV|SRC] [--set key=value ...]
 """
 
@@ -29,6 +29,9 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root: benchmarks.common
+from benchmarks.common import export_src
 
 DEFAULT_SIZES = "960x540,1280x720,1920x1080,3840x2160"
 
@@ -178,9 +181,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     with tempfile.TemporaryDirectory() as tmp:
         if args.baseline and not Path(args.baseline).is_dir():
-            from whole_process import _export_src
-
-            args.baseline = _export_src(args.baseline, Path(tmp))
+            args.baseline = export_src(args.baseline, Path(tmp))
         return _run(args)
 
 

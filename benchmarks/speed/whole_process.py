@@ -1,5 +1,5 @@
 """Whole-process wall time and peak RSS of ``geofill fill`` as a user runs it, each run paired with
-the standalone homography baseline (``benchmarks/homography_baseline.py``) on the same files, and
+the standalone homography baseline (``benchmarks/speed/homography_baseline.py``) on the same files, and
 the start-up time of ``geofill --help``, ``geofill config`` and ``geofill serve`` (until its port
 accepts a connection, until its page has been served, and until the files it names have been too).
 
@@ -13,8 +13,8 @@ Cases: ``720p`` (the synthetic ray-cast scene at 1280x720 with its object hole),
 pair dev_opensfm_berlin_01_02 at its own 1280x960 with the evaluation's stroke hole, seed 0),
 ``4k`` (the synthetic scene at 3840x2160). Time vs pixels: the exponent of 720p -> 4k.
 
-    .venv/bin/python benchmarks/whole_process.py [--runs 5] [--cases 720p,berlin,4k] [--set KEY=VALUE ...]
-        [--before REV|SRC]
+    .venv/bin/python benchmarks/speed/whole_process.py [--runs 5] [--cases 720p,berlin,4k]
+        [--set KEY=VALUE ...] [--before REV|SRC]
 
 geofill's modules are byte-compiled first, as ``pip install`` does (see ``_byte_compile``).
 
@@ -40,8 +40,10 @@ import time
 import urllib.request
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root: benchmarks.common
+from benchmarks.common import PAIRS, export_src, timed_child
+
 HERE = Path(__file__).resolve().parent
-PAIRS = HERE.parent.parent / "shared" / "data" / "pairs"
 BERLIN = "dev_opensfm_berlin_01_02"
 SYNTHETIC_SIZES = {"720p": (1280, 720), "4k": (3840, 2160)}
 
@@ -57,21 +59,6 @@ def _make_inputs(case: str, folder: Path) -> None:
         write_pair_files(folder, pair.target, pair.source, pair_mask(pair, 0))
     else:
         write_inputs(SYNTHETIC_SIZES[case], None, folder)
-
-
-def _timed(cmd: list[str], env: dict[str, str] | None = None) -> tuple[float, float]:
-    """(wall s, peak RSS MB) of one child process; raises if it fails."""
-    with tempfile.TemporaryFile() as err:
-        t0 = time.perf_counter()
-        proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=err, env=env)
-        _, status, usage = os.wait4(proc.pid, 0)
-        wall = time.perf_counter() - t0
-        proc.returncode = os.waitstatus_to_exitcode(status)
-        if proc.returncode:
-            err.seek(0)
-            text = err.read().decode(errors="replace").strip()[-500:]
-            raise RuntimeError(f"{' '.join(cmd)} failed ({proc.returncode}): {text}")
-    return wall, usage.ru_maxrss / 1024.0
 
 
 def _serve_start(port: int) -> tuple[float, float, float]:
@@ -127,11 +114,11 @@ def _paired(folder: Path, runs: int, overrides: list[str], before: str | None) -
         cmds["before"] = [sys.executable, "-c", launch, "fill", *io, "-o", str(folder / "p.png"), "--quiet"]
         envs["before"] = {**os.environ, "PYTHONPATH": before}
     for name, cmd in cmds.items():
-        _timed(cmd, envs[name])  # warm-up
+        timed_child(cmd, envs[name])  # warm-up
     out: dict[str, list[float]] = {}
     for _ in range(runs):
         for name, cmd in cmds.items():
-            wall, rss = _timed(cmd, envs[name])
+            wall, rss = timed_child(cmd, envs[name])
             out.setdefault(name, []).append(wall)
             out.setdefault(f"{name} rss", []).append(rss)
         out.setdefault("ratio", []).append(out["geofill"][-1] / out["baseline"][-1])
@@ -155,18 +142,8 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     with tempfile.TemporaryDirectory() as tmp:
         if args.before and not Path(args.before).is_dir():
-            args.before = _export_src(args.before, Path(tmp))
+            args.before = export_src(args.before, Path(tmp))
         return _run(args)
-
-
-def _export_src(rev: str, folder: Path) -> str:
-    """The ``src`` folder of git revision ``rev`` of this checkout, exported under ``folder``."""
-    git = ["git", "-C", str(HERE.parent)]
-    archive = subprocess.run([*git, "archive", rev, "src"], check=True, capture_output=True).stdout
-    subprocess.run(["tar", "-x", "-C", str(folder)], input=archive, check=True)
-    short = subprocess.check_output([*git, "rev-parse", "--short", rev], text=True).strip()
-    print(f"before: {rev} = {short}")
-    return str(folder / "src")
 
 
 def _byte_compile(src: str | None) -> None:
@@ -184,8 +161,8 @@ def _run(args: argparse.Namespace) -> int:
     print(f"load average before: {' '.join(f'{v:.2f}' for v in os.getloadavg())} ({os.cpu_count()} cpus)")
     _byte_compile(args.before)
     for name, cmd in (("geofill --help", [_geofill(), "--help"]), ("geofill config", [_geofill(), "config"])):
-        _timed(cmd)
-        times = [_timed(cmd)[0] for _ in range(args.runs)]
+        timed_child(cmd)
+        times = [timed_child(cmd)[0] for _ in range(args.runs)]
         print(f"{name:<16s} median {statistics.median(times):.3f} s  (runs {args.runs})")
     if importlib.util.find_spec("uvicorn") is None:
         print(f"{'geofill serve':<16s} skipped: the server extra is not installed in this environment")

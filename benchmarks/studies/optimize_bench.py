@@ -1,10 +1,10 @@
 """Joint pose-depth optimisation (issue 5): both solvers from the same start, on synthetic scenes with
 a perturbed start and on the real pairs. Figures, not a test.
 
-    .venv/bin/python benchmarks/optimize_bench.py synthetic [--scenes 3] [--size 1280x720]
-    .venv/bin/python benchmarks/optimize_bench.py real [--pairs ../shared/data/pairs] [--only a,b]
-    .venv/bin/python benchmarks/optimize_bench.py focal [--scenes 3] [--ratios 0.8,1.25]
-    .venv/bin/python benchmarks/optimize_bench.py eval -- <geofill eval arguments>
+    .venv/bin/python benchmarks/studies/optimize_bench.py synthetic [--scenes 3] [--size 1280x720]
+    .venv/bin/python benchmarks/studies/optimize_bench.py real [--pairs ../shared/data/pairs] [--only a,b]
+    .venv/bin/python benchmarks/studies/optimize_bench.py focal [--scenes 3] [--ratios 0.8,1.25]
+    .venv/bin/python benchmarks/studies/optimize_bench.py eval -- <geofill eval arguments>
 
 ``synthetic``: exact depth and pose of :func:`geofill.synthetic.make_pair`, then the start is
 perturbed (rotation by ``--rot`` deg about a random axis, translation direction by ``--tdir`` deg,
@@ -47,7 +47,8 @@ from geofill.optimize import OptimizationResult, optimize_pose_depth
 from geofill.pipeline import ReferenceArtifacts, fill, prepare_fill, run_reference
 from geofill.synthetic import make_pair
 
-PAIRS = Path(__file__).resolve().parents[2] / "shared" / "data" / "pairs"
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root: benchmarks.common
+from benchmarks.common import PAIRS
 
 
 @dataclass

@@ -3,8 +3,8 @@ the render, refinement off), then every variant refines and merges that same ren
 comparison is not blurred by run-to-run differences of the earlier stages. Hole PSNR per pair and
 variant, the homography baseline on the same hole, and means / wins at the end.
 
-    .venv/bin/python benchmarks/refine_variants.py [--pairs ../shared/data/pairs] [--set key=value ...]
-        [--variant NAME:key=value,key=value ...] [--render-cache DIR]
+    .venv/bin/python benchmarks/studies/refine_variants.py [--pairs ../shared/data/pairs]
+        [--set key=value ...] [--variant NAME:key=value,key=value ...] [--render-cache DIR]
 
 ``--render-cache DIR`` stores each pair's render (correspondence field, alpha) and reuses it in
 later runs, so separate runs compare refinement settings on the very same renders.
@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import statistics
+import sys
 import time
 from pathlib import Path
 
@@ -30,6 +31,9 @@ from geofill.evaluation.pairs import load_pairs, pair_mask
 from geofill.pipeline import fill
 from geofill.refine import refine_render
 from geofill.render import RenderResult
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root: benchmarks.common
+from benchmarks.common import PAIRS
 
 #: name -> refine-config overrides (on top of the base config's refine section).
 VARIANTS = {
@@ -77,7 +81,7 @@ def _render(pair, masked, hole, cfg: FillConfig, cache: Path | None) -> RenderRe
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--pairs", default=str(Path(__file__).resolve().parents[2] / "shared" / "data" / "pairs"))
+    ap.add_argument("--pairs", default=str(PAIRS))
     ap.add_argument("--set", action="append", metavar="KEY=VALUE", help="base config override (repeatable)")
     ap.add_argument(
         "--variant", action="append", metavar="NAME:k=v,...", help="refine variants to run instead"
