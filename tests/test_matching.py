@@ -250,6 +250,7 @@ def test_memory_freed_in_worker_threads_goes_back_to_the_system() -> None:
             with open("/proc/self/statm") as f:
                 return int(f.read().split()[1]) * 4096 / 2**20
         np.ones(30 << 20, np.uint8)  # once a 30 MB block is freed, glibc keeps smaller ones in arenas
+        base = rss_mb()
         def work():
             blocks = [np.ones(8 << 20, np.uint8) for _ in range(20)]
             del blocks
@@ -258,9 +259,11 @@ def test_memory_freed_in_worker_threads_goes_back_to_the_system() -> None:
         for t in threads: t.join()
         held = rss_mb()
         release_free_memory()
-        print(held, rss_mb())
+        print(base, held, rss_mb())
         """
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
-    held, after = (float(v) for v in out.stdout.split())
-    assert held - after > 150  # measured 273 -> 48 MB
+    base, held, after = (float(v) for v in out.stdout.split())
+    # Measured: base 73 MB, held 241-298 MB (how many arenas the threads used varies run to run),
+    # after 73-129 MB; without the release it stays at held. At least half of it must come back.
+    assert held - base > 100 and after < held - 0.5 * (held - base)
