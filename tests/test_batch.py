@@ -18,7 +18,7 @@ import pytest
 from geofill.batch.runner import exit_status
 from geofill.cli import main
 from geofill.errors import EXIT_FELL_BACK, EXIT_INTERRUPTED, EXIT_ITEMS_FAILED
-from geofill.synthetic import make_pair
+from geofill.synthetic import blanked, make_pair
 
 SEEDS = (3, 5)
 
@@ -46,7 +46,7 @@ def _shoot(root, pairs, names=None):
     names = names or {name: name for name in pairs}
     for name, key in names.items():
         p = pairs[key]
-        _write_rgb(root / "images" / f"{name}.png", p.target)
+        _write_rgb(root / "images" / f"{name}.png", blanked(p.target, p.hole))
         (root / "masks").mkdir(parents=True, exist_ok=True)
         assert cv2.imwrite(str(root / "masks" / f"{name}.png"), p.hole.astype(np.uint8) * 255)
         _write_rgb(root / "refs" / name / "view.png", p.source)

@@ -29,7 +29,7 @@ def _single_reference(index: int = 2):
     empty = np.full((h, w), -1.0, np.float32)
     render = RenderResult(empty, empty, np.full((h, w), np.inf, np.float32), alpha, roi)
     refined = SimpleNamespace(image=image, alpha=alpha, render=render)
-    return hole, SimpleNamespace(index=index, refined=refined)
+    return hole, SimpleNamespace(index=index, refined=refined, screened=refined)
 
 
 def test_single_reference_passes_its_render_through():

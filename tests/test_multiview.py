@@ -11,7 +11,7 @@ from geofill.composite.merge import merge_fill
 from geofill.config import FillConfig
 from geofill.evaluation.metrics import psnr
 from geofill.pipeline import fill
-from geofill.synthetic import make_views
+from geofill.synthetic import blanked, make_views
 from geofill.utils.resolution import config_px
 
 # Focal from the default prior (the views' true focal): the test is about fusion, not focal.
@@ -33,9 +33,9 @@ def views():
 def fills(views):
     v, hole = views
     return {
-        "left": fill(v.target, hole, [v.sources[0]], CFG),
-        "right": fill(v.target, hole, [v.sources[1]], CFG),
-        "both": fill(v.target, hole, v.sources, CFG),
+        "left": fill(blanked(v.target, hole), hole, [v.sources[0]], CFG),
+        "right": fill(blanked(v.target, hole), hole, [v.sources[1]], CFG),
+        "both": fill(blanked(v.target, hole), hole, v.sources, CFG),
     }
 
 
@@ -70,7 +70,7 @@ def test_fused_fill_matches_the_ground_truth_where_a_reference_sees_it(views, fi
 
 def test_reference_order_does_not_change_the_fill(views, fills):
     v, hole = views
-    swapped = fill(v.target, hole, v.sources[::-1], CFG)
+    swapped = fill(blanked(v.target, hole), hole, v.sources[::-1], CFG)
     assert np.array_equal(swapped.image, fills["both"].image)
     assert swapped.report.supplied_fraction == fills["both"].report.supplied_fraction[::-1]
 
@@ -78,7 +78,7 @@ def test_reference_order_does_not_change_the_fill(views, fills):
 def test_a_noise_image_among_the_references_is_dropped_with_its_reason(views, fills):
     v, hole = views
     noise = np.random.default_rng(0).integers(0, 256, v.target.shape, dtype=np.uint8)
-    res = fill(v.target, hole, [v.sources[0], noise, v.sources[1]], CFG)
+    res = fill(blanked(v.target, hole), hole, [v.sources[0], noise, v.sources[1]], CFG)
     ref = res.report.references[1]
     # The matching ladder finds a few chance matches in noise; the pose stage turns them down.
     assert ref["status"] == "dropped" and ("match" in ref["reason"] or "pose" in ref["reason"])
@@ -103,14 +103,16 @@ def test_one_reference_is_the_single_reference_fill(views, fills):
         masked, hole, ref.refined.image, ref.refined.alpha, get_inpainter(CFG.inpaint), feather
     )
     assert np.array_equal(res.image, expected)
-    assert np.array_equal(fill(v.target, hole, v.sources[0], CFG).image, res.image)  # one image, not a list
+    assert np.array_equal(
+        fill(blanked(v.target, hole), hole, v.sources[0], CFG).image, res.image
+    )  # one image, not a list
 
 
 def test_stop_after_a_stage_and_resume(views, fills):
     from geofill.pipeline import ReferenceArtifacts, prepare_fill, run_reference
 
     v, hole = views
-    ctx = prepare_fill(v.target, hole, [v.sources[0]], CFG)
+    ctx = prepare_fill(blanked(v.target, hole), hole, [v.sources[0]], CFG)
     ref = ReferenceArtifacts(1, v.sources[0])
     early = run_reference(ctx, ref, until="depth")
     assert early.depth is not None and early.geometry is None and early.render is None
@@ -133,7 +135,7 @@ def test_one_focal_from_all_references_of_one_camera():
     hole = np.zeros((240, 320), bool)
     hole[100:140, 140:180] = True
     cfg = FillConfig().updated({"intrinsics.shared_camera": "yes"})
-    ctx = prepare_fill(v.target, hole, v.sources, cfg)
+    ctx = prepare_fill(blanked(v.target, hole), hole, v.sources, cfg)
     refs = [run_reference(ctx, ReferenceArtifacts(i + 1, s), until="match") for i, s in enumerate(v.sources)]
     joint = shared_focal(refs, cfg)
     focals = {r.focal.K_target.fx for r in joint}
@@ -141,6 +143,6 @@ def test_one_focal_from_all_references_of_one_camera():
     assert focals.pop() == pytest.approx(f_true, rel=0.05)
     assert {r.focal.K_source.fx for r in joint} == {joint[0].focal.K_target.fx}
     # The fill runs the same shared estimate when the user says the camera is shared.
-    res = fill(v.target, hole, v.sources, cfg)
+    res = fill(blanked(v.target, hole), hole, v.sources, cfg)
     assert "shared focal" in res.report.timings_s
     assert res.report.references[0]["focal"]["method"] == "shared"

@@ -10,7 +10,7 @@ from geofill.composite.inpaint import inpaint_single
 from geofill.config import FillConfig
 from geofill.evaluation.metrics import psnr
 from geofill.pipeline import fill
-from geofill.synthetic import make_pair
+from geofill.synthetic import blanked, make_pair
 
 
 @pytest.fixture(scope="module")
@@ -20,7 +20,7 @@ def pair():
 
 @pytest.fixture(scope="module")
 def result(pair):
-    return fill(pair.target, pair.hole, pair.source)
+    return fill(blanked(pair.target, pair.hole), pair.hole, pair.source)
 
 
 def test_fill_recovers_pose_and_beats_single_image(pair, result):
@@ -43,12 +43,32 @@ def test_outside_hole_is_byte_identical(pair, result):
     assert np.array_equal(result.image[~pair.hole], pair.target[~pair.hole])
 
 
-def test_hole_content_does_not_steer_the_fill(pair, result):
-    # The hole holds the object being removed: a noisy object there must give the same fill.
+def test_hole_content_the_references_do_not_show_does_not_steer_the_fill(pair, result):
+    # A noisy object in the hole, which no reference shows: the same fill as a blanked hole.
     target = pair.target.copy()
     rng = np.random.default_rng(1)
     target[pair.hole] = rng.integers(0, 256, (int(pair.hole.sum()), 3), dtype=np.uint8)
-    assert np.array_equal(fill(target, pair.hole, pair.source).image, result.image)
+    res = fill(target, pair.hole, pair.source)
+    assert res.report.refused_fraction == {"removed_object": 0.0}
+    assert np.array_equal(res.image, result.image)
+
+
+def test_what_the_hole_shows_is_never_copied_back(pair, result):
+    # The hole shows exactly what the reference shows there: that is the thing being removed, so
+    # the reference may not paste it back; the hole is painted instead.
+    res = fill(pair.target, pair.hole, pair.source)
+    covered = result.report.supplied_fraction[0]
+    assert covered > 0.8
+    assert res.report.refused_fraction["removed_object"] > 0.9 * covered
+    assert res.report.supplied_fraction[0] < 0.05
+    ref = res.report.references[0]["screen"]
+    assert ref["object_located"] and ref["object_matches"] >= 8
+    assert "not copied because the references showed the removed object" in res.report.refused_words()
+    # With the refusal off, the same input gives the restoration fill (the hole's content unused).
+    allowed = fill(
+        pair.target, pair.hole, pair.source, FillConfig().updated({"screen.removed_object": "allow"})
+    )
+    assert np.array_equal(allowed.image, result.image)
 
 
 def test_report_has_stage_timings_and_geometry(pair, result):
@@ -85,7 +105,7 @@ def test_exact_depth_from_file_renders_hole_accurately(pair, tmp_path):
     overrides = {"depth.backend": "file", "depth.file_path": str(path), "depth.file_metric": True}
     overrides["intrinsics.estimate"] = "none"  # the default focal is the true one: isolate depth + render
     cfg = FillConfig().updated(overrides)
-    res = fill(pair.target, pair.hole, pair.source, cfg)
+    res = fill(blanked(pair.target, pair.hole), pair.hole, pair.source, cfg)
     depth = res.report.references[0]["depth"]
     assert depth["method"] == "scale-only"
     assert depth["median_rel_error"] < 0.01
@@ -96,7 +116,7 @@ def test_exact_depth_from_file_renders_hole_accurately(pair, tmp_path):
 
 def test_pure_rotation_is_filled_with_the_rotation_homography():
     p = make_pair(seed=1, width=400, height=300, motion="rotate")
-    res = fill(p.target, p.hole, p.source)
+    res = fill(blanked(p.target, p.hole), p.hole, p.source)
     pose = res.report.references[0]["pose"]
     assert pose["status"] == "rotation_only"
     assert any("rotation" in f for f in res.report.fallbacks)
@@ -106,7 +126,7 @@ def test_pure_rotation_is_filled_with_the_rotation_homography():
 
 def test_unrelated_source_falls_back_to_single_image_with_reason(pair):
     noise = np.random.default_rng(0).integers(0, 256, pair.source.shape, dtype=np.uint8)
-    res = fill(pair.target, pair.hole, noise)
+    res = fill(blanked(pair.target, pair.hole), pair.hole, noise)
     assert res.report.status == "single_image"
     assert res.report.fallbacks and "match" in res.report.fallbacks[0]
     single = inpaint_single(pair.target, pair.hole, FillConfig().inpaint)
@@ -118,7 +138,7 @@ def test_source_that_does_not_see_the_hole_falls_back():
     p = make_pair(seed=0, width=480, height=360, motion="sideways", baseline=1.5)
     hole = np.zeros_like(p.hole)
     hole[100:260, :50] = True  # the source moved 1.5 units right and never saw this strip
-    res = fill(p.target, hole, p.source)
+    res = fill(blanked(p.target, hole), hole, p.source)
     assert res.report.references[0]["pose"]["status"] == "ok"
     assert res.report.status == "single_image"
     assert "covers only 0.0%" in res.report.fallbacks[-1]
@@ -126,7 +146,7 @@ def test_source_that_does_not_see_the_hole_falls_back():
 
 def test_different_source_size_and_portrait():
     p = make_pair(seed=2, width=300, height=400, source_size=(480, 360))
-    res = fill(p.target, p.hole, p.source)
+    res = fill(blanked(p.target, p.hole), p.hole, p.source)
     assert res.report.status == "reference"
     ref = res.report.references[0]
     rot, tdir = pose_errors_deg(np.array(ref["pose"]["source_to_target"]), p.T_source_to_target)

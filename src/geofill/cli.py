@@ -170,8 +170,10 @@ def cmd_fill(args: argparse.Namespace) -> int:
         f"{100 * f:.0f}% from reference {i}" for i, f in enumerate(r.supplied_fraction, 1) if f > 0
     )
     how = f"{shares}, {100 * r.painted_fraction:.0f}% painted" if shares else "by single-image inpainting"
+    refused = r.refused_words()
     prog.say(
         f"wrote {args.output}: hole of {r.hole_pixels} px filled {how} in {sum(r.timings_s.values()):.2f} s"
+        + (f"; {refused}" if refused else "")
     )
     if r.status == "reference" or args.allow_fallback:
         return 0

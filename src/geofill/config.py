@@ -9,6 +9,7 @@ Sections follow the pipeline, but some are read by more than one stage. Which st
 - pose: ``geometry`` and ``matching``'s robust-fit keys; triangulate: ``geometry``;
 - depth: ``depth`` and ``geometry``'s depth fit (``depth_fit``, ``fit_space``);
 - optimize: ``optimize``; render: ``render`` and ``refine.band_px`` (its margin); refine: ``refine``;
+  screen: ``screen``;
 - fuse: ``fusion`` and ``refine.band_px`` (its known ring); composite: ``inpaint`` and
   ``refine.feather_px``;
 - the reference runner: ``fusion.parallel``; the input checks: the top-level limits; the progress:
@@ -689,6 +690,50 @@ class FusionConfig:
 
 
 @dataclass
+class ScreenConfig:
+    """What of a reference's render may be copied into the hole (:mod:`geofill.screen`). What the
+    hole shows is the thing the user removes: reference content that shows it again is refused.
+    Pixel distances are at a 1280-px long side and scale with the image."""
+
+    removed_object: Literal["refuse", "allow"] = setting(
+        "refuse",
+        'Reference content that shows what the hole shows is refused ("refuse") or copied like any other '
+        '("allow", the behaviour before object removal). A hole that shows nothing (blank or constant, as in '
+        "the restoration benchmark) refuses nothing either way.",
+    )
+    min_hole_texture: Annotated[float, Range(0, 255)] = setting(
+        2.0,
+        "The hole shows something to remove only where the standard deviation of its grey values (0-255) is "
+        "above this: a blanked or constant hole is no object.",
+    )
+    min_object_matches: Annotated[int, Range(4, 10_000)] = setting(
+        8,
+        "SIFT matches between the hole's content and a reference (epipolar-consistent with the pair's pose) "
+        "needed to locate the removed object in that reference.",
+    )
+    object_margin_px: Annotated[float, Range(0, 1000)] = setting(
+        12.0,
+        "The removed object's region located in a reference is grown by this (px): its silhouette there is "
+        "only approximate.",
+    )
+    appearance_threshold: Annotated[float, Range(0, 255)] = setting(
+        10.0,
+        "Render pixels whose patch differs from the hole's own content by less than this (mean absolute "
+        "difference, 0-255, after the ring's colour correction) show the removed object again; 0 turns the "
+        "appearance test off.",
+    )
+    appearance_patch_px: Annotated[float, Range(1, 100)] = setting(
+        9.0,
+        "Side (px) of the patches the appearance test compares.",
+    )
+    appearance_min_texture: Annotated[float, Range(0, 255)] = setting(
+        6.0,
+        "The appearance test judges only patches of the hole's content whose grey standard deviation (0-255) "
+        "is above this: on a flat patch the object and the background cannot be told apart.",
+    )
+
+
+@dataclass
 class FillConfig:
     """Every setting of one fill."""
 
@@ -701,6 +746,7 @@ class FillConfig:
     inpaint: InpaintConfig = field(default_factory=InpaintConfig)
     refine: RefineConfig = field(default_factory=RefineConfig)
     fusion: FusionConfig = field(default_factory=FusionConfig)
+    screen: ScreenConfig = field(default_factory=ScreenConfig)
     working_max_side: Annotated[int, Range(64, 16384)] = setting(
         1280,
         "Geometry (matching, pose, depth, optimisation) runs with the long side capped at this (px); "

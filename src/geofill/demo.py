@@ -16,7 +16,7 @@ from .evaluation.metrics import psnr, ssim
 from .io import write_image_atomic
 from .pipeline import fill
 from .progress import Progress
-from .synthetic import make_pair
+from .synthetic import blanked, make_pair
 
 
 def _label(image: np.ndarray, text: str) -> np.ndarray:
@@ -32,7 +32,9 @@ def run_demo(out_dir: Path, seed: int = 0, quiet: bool = False, width: int = 640
     prog.say(f"generating synthetic scene (seed {seed}, {width}x{height})")
     pair = make_pair(seed=seed, width=width, height=height)
     cfg = FillConfig()
-    result = fill(pair.target, pair.hole, pair.source, cfg, progress=prog)
+    # The hole shows nothing (the restoration input): here it hides no object, only what the
+    # reference sees, which the screen stage would otherwise refuse as the thing being removed.
+    result = fill(blanked(pair.target, pair.hole), pair.hole, pair.source, cfg, progress=prog)
     single = inpaint_single(pair.target, pair.hole, cfg.inpaint)
     ref = result.references[0]
     T = ref.geometry.T if ref.geometry is not None else np.eye(4)

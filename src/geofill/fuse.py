@@ -93,8 +93,8 @@ def fuse_references(
         return Fusion(None, None, labels, "none")
     if len(refs) == 1:
         # Its refined render passes through as it is; only the labels are written, in its window.
-        r = refs[0].refined
-        rows, cols = r.render.window()
+        r = refs[0].screened
+        rows, cols = refs[0].refined.render.window()
         labels[rows, cols][r.alpha[rows, cols] & hole[rows, cols]] = refs[0].index
         return Fusion(r.image, r.alpha, labels, "single reference", window=(rows, cols))
     fc = cfg.fusion
@@ -105,8 +105,8 @@ def fuse_references(
     )  # the buffer itself: tobytes() would copy each source image first
     rows, cols = _window(refs, hole)
     hole_w = hole[rows, cols]
-    alphas = np.stack([r.refined.alpha[rows, cols] for r in refs])
-    images = np.stack([r.refined.image[rows, cols] for r in refs]).astype(np.float32)
+    alphas = np.stack([r.screened.alpha[rows, cols] for r in refs])
+    images = np.stack([r.screened.image[rows, cols] for r in refs]).astype(np.float32)
     ring = _known_ring(hole_w, config_px(cfg.refine.band_px, hole.shape))
     scores = np.stack(
         [
@@ -151,11 +151,11 @@ def reference_score(
     shape: tuple[int, int],
     cfg: FusionConfig,
 ) -> np.ndarray:
-    """Score in [0, 1] of ``ref``'s refined render ``image`` (float32, the window ``rows, cols`` of
+    """Score in [0, 1] of ``ref``'s screened render ``image`` (float32, the window ``rows, cols`` of
     a target of ``shape``) at each pixel of the window, from everything but the other references
     (0 where it has no render). ``ring``: the known pixels next to the hole, in the window."""
     refined = ref.refined
-    a = refined.alpha[rows, cols]
+    a = ref.screened.alpha[rows, cols]
     if not a.any():
         return np.zeros(a.shape, np.float32)
     px = config_px(1.0, shape)
@@ -281,7 +281,7 @@ def _graphcut_labels(
     size = (max(round(w * s), 1), max(round(h * s), 1))
     images, masks = [], []
     for k, r in enumerate(refs):
-        img = r.refined.image[rows, cols].astype(np.float32)
+        img = r.screened.image[rows, cols].astype(np.float32)
         images.append(cv2.UMat(cv2.resize(img, size, interpolation=cv2.INTER_AREA)))
         m = cv2.resize(candidates[k].astype(np.uint8) * 255, size, interpolation=cv2.INTER_NEAREST)
         masks.append(cv2.UMat(m))

@@ -2,7 +2,7 @@
 
 Per reference photo (:func:`run_reference`)::
 
-    prepare -> match -> focal -> pose -> triangulate -> depth -> optimize -> render -> refine
+    prepare -> match -> focal -> pose -> triangulate -> depth -> optimize -> render -> refine -> screen
 
 then, once for the fill (:func:`fill`): fuse the references' renders -> composite with single-image
 inpainting. Each stage is a function from typed inputs to a frozen result that owns its
@@ -36,7 +36,7 @@ from .errors import ArrayFormatError, ReferenceUnusable
 from .focal import FocalEstimate, estimate_focal, shared_estimate, shared_focal_scale
 from .fuse import Fusion, fuse_references
 from .intrinsics import ExifLens
-from .io import LoadedImage, as_rgb_uint8, validate_pair
+from .io import LoadedImage, as_rgb_uint8, as_source_mask, validate_pair
 from .match import Matches, match_pair
 from .optimize.stage import Geometry, optimize_geometry
 from .pose import PoseEstimate, estimate_pose
@@ -45,6 +45,7 @@ from .prepare import WorkingViews, prepare_views
 from .progress import Progress
 from .refine import RefinedRender, refine_render
 from .render import ReferenceRender, render_reference
+from .screen import ScreenedRender, screen_render, shows_object
 from .triangulate import TriangulatedPoints, triangulate
 from .utils.jit import warm_up
 from .utils.resolution import config_px
@@ -60,6 +61,7 @@ REFERENCE_STAGES: tuple[tuple[str, str], ...] = (
     ("optimize", "geometry"),
     ("render", "render"),
     ("refine", "refined"),
+    ("screen", "screened"),
 )
 
 
@@ -70,6 +72,9 @@ class FillContext:
 
     target: np.ndarray  # HxWx3 uint8, hole pixels zeroed
     hole: np.ndarray  # HxW bool
+    #: The target as given when its hole shows something to remove (the object: a negative, never
+    #: content), else None.
+    shown: np.ndarray | None
     target_exif: ExifLens | None
     depth_choice: BackendChoice
     inpainter: Inpainter
@@ -83,6 +88,7 @@ class ReferenceArtifacts:
     index: int  # 1-based, in the order the references were given
     source: np.ndarray  # HxWx3 uint8 as given
     exif: ExifLens | None = None
+    exclude: np.ndarray | None = None  # HxW bool at the source's size: pixels never to copy
     views: WorkingViews | None = None
     matches: Matches | None = None
     focal: FocalEstimate | None = None
@@ -92,13 +98,14 @@ class ReferenceArtifacts:
     geometry: Geometry | None = None
     render: ReferenceRender | None = None
     refined: RefinedRender | None = None
+    screened: ScreenedRender | None = None
     dropped: str = ""  # the reason this reference cannot help ("" while it can)
     timings_s: dict[str, float] = field(default_factory=dict)
 
     @property
     def usable(self) -> bool:
-        """Reached the refine stage without being dropped."""
-        return self.refined is not None and not self.dropped
+        """Reached the screen stage without being dropped."""
+        return self.screened is not None and not self.dropped
 
     def report(self) -> dict[str, Any]:
         """This reference's report: every stage reached, by stage name, plus the intrinsics used."""
@@ -138,6 +145,9 @@ class FillReport:
     references: list[dict[str, Any]] = field(default_factory=list)
     supplied_fraction: list[float] = field(default_factory=list)  # per reference, of the hole
     painted_fraction: float = 1.0  # of the hole, by single-image inpainting
+    #: Of the hole, where a reference's render was not copied: ``removed_object`` (it showed what the
+    #: hole shows, the thing removed), ``masked`` (it came from pixels the user masked).
+    refused_fraction: dict[str, float] = field(default_factory=dict)
     fusion: dict[str, Any] = field(default_factory=dict)
     inpaint_method: str = ""
     depth_choice: str = ""
@@ -145,6 +155,23 @@ class FillReport:
 
     def to_dict(self) -> dict[str, Any]:
         return {f.name: getattr(self, f.name) for f in fields(self)}
+
+    def refused_words(self) -> str:
+        """What was not copied from the references, in plain words ('' when nothing was).
+
+        >>> FillReport(refused_fraction={"removed_object": 0.4, "masked": 0.0}).refused_words()
+        '40% of the hole was not copied because the references showed the removed object'
+        """
+        why = {
+            "removed_object": "the references showed the removed object",
+            "masked": "it was masked in the references",
+        }
+        parts = [
+            f"{100 * f:.0f}% of the hole was not copied because {why[k]}"
+            for k, f in self.refused_fraction.items()
+            if f >= 0.005
+        ]
+        return "; ".join(parts)
 
     def to_json(self) -> str:
         return json.dumps(self.to_dict(), indent=2)
@@ -183,16 +210,19 @@ def prepare_fill(
             max_pixels=cfg.max_pixels,
             max_mask_fraction=cfg.max_mask_fraction,
         )
-    # Whatever the hole shows (the object being removed) must not steer the fill: every stage sees
-    # it blanked, so the result depends on the known pixels only. Black beat a Telea pre-fill
-    # (mean hole PSNR 19.02 vs 18.75 dB on the DEV pairs): keypoints are dropped near the hole
-    # anyway, and a flat region gives the stereo and the flow no false texture.
+    # Whatever the hole shows (the object being removed) is never content: every stage before the
+    # screen sees it blanked, so the geometry depends on the known pixels only. Black beat a Telea
+    # pre-fill (mean hole PSNR 19.02 vs 18.75 dB on the DEV pairs): keypoints are dropped near the
+    # hole anyway, and a flat region gives the stereo and the flow no false texture. The screen
+    # uses what it shows as a negative: reference content that shows it again is refused.
+    refuse = cfg.screen.removed_object == "refuse"
+    shown = target if refuse and shows_object(target, hole, cfg.screen.min_hole_texture) else None
     target = target.copy()
     target[hole] = 0
     choice = choose_backend(cfg.depth, say)
     if say is not None:
         say(f"depth backend: {choice.reason}")
-    return FillContext(target, hole, target_exif, choice, get_inpainter(cfg.inpaint, say), cfg)
+    return FillContext(target, hole, shown, target_exif, choice, get_inpainter(cfg.inpaint, say), cfg)
 
 
 def run_reference(
@@ -220,6 +250,7 @@ def run_reference(
         "optimize": lambda a: optimize_geometry(a.views, a.focal, a.pose, a.depth, a.matches, cfg.optimize),
         "render": lambda a: render_reference(a.geometry, a.source, ctx.hole, cfg.render, render_margin_px(cfg)),
         "refine": lambda a: refine_render(ctx.target, ctx.hole, a.source, a.render.render, cfg.refine),
+        "screen": lambda a: screen_render(a.refined, ctx.hole, a.source, ctx.shown, a.exclude, a.views, a.matches, a.focal, a.pose, cfg),
     }  # fmt: skip
     for stage, name in REFERENCE_STAGES:
         if a.dropped:
@@ -296,9 +327,14 @@ def fill(
     *,
     target_exif: ExifLens | None = None,
     source_exifs: Sequence[ExifLens | None] | None = None,
+    source_masks: Sequence[np.ndarray | None] | None = None,
     progress: Progress | None = None,
 ) -> FillResult:
     """Fill the hole ``mask`` (True/255 = hole) of ``target`` with content from ``sources``.
+
+    What the hole shows is what the user removes: reference content that shows it again is not
+    copied (``screen.removed_object``). ``source_masks`` (one per source, None for none; True/255 =
+    masked) mark what must never be copied from each reference.
 
     ``sources`` is one image or a sequence of them (other photos of the scene), each with its own
     entry in ``source_exifs``. Images are HxWx3 uint8 RGB (other dtypes/channels are normalised);
@@ -321,12 +357,16 @@ def fill(
     exifs = list(source_exifs) if source_exifs is not None else [None] * len(images)
     if len(exifs) != len(images):
         raise ArrayFormatError(f"{len(exifs)} source EXIF entries for {len(images)} sources")
+    masks = list(source_masks) if source_masks is not None else [None] * len(images)
+    if len(masks) != len(images):
+        raise ArrayFormatError(f"{len(masks)} source masks for {len(images)} sources")
     with prog.stage("check inputs"):
         ctx = prepare_fill(target, mask, images, cfg, target_exif, prog.say)
-    refs = [
-        ReferenceArtifacts(i + 1, as_rgb_uint8(s), e)
-        for i, (s, e) in enumerate(zip(images, exifs, strict=True))
-    ]
+    refs = []
+    for i, (s, e, m) in enumerate(zip(images, exifs, masks, strict=True)):
+        source = as_rgb_uint8(s)
+        exclude = None if m is None else as_source_mask(m, source, f"mask of source {i + 1}")
+        refs.append(ReferenceArtifacts(i + 1, source, e, exclude))
     if shares_camera(ctx, refs):
         refs = _run_references(ctx, refs, prog, until="match")
         with prog.stage("shared focal") as notes:
@@ -351,6 +391,7 @@ def fill_loaded(
     sources: Sequence[LoadedImage],
     config: FillConfig | None = None,
     *,
+    source_masks: Sequence[np.ndarray | None] | None = None,
     progress: Progress | None = None,
 ) -> FillResult:
     """:func:`fill` on images read with :func:`geofill.io.read_image`, each with its EXIF lens: the
@@ -362,6 +403,7 @@ def fill_loaded(
         config,
         target_exif=target.exif,
         source_exifs=[s.exif for s in sources],
+        source_masks=source_masks,
         progress=progress,
     )
 
@@ -422,6 +464,16 @@ def composite(ctx: FillContext, fusion: Fusion) -> np.ndarray:
     return merge_fill(ctx.target, ctx.hole, fusion.image, fusion.alpha, ctx.inpainter, feather)
 
 
+def _refused_fractions(hole: np.ndarray, used: list[ReferenceArtifacts]) -> dict[str, float]:
+    """Of the hole, where any reference's render was refused, per reason."""
+    out = {}
+    for key, name in (("removed_object", "refused_object"), ("masked", "refused_masked")):
+        masks = [getattr(r.screened, name) for r in used if getattr(r.screened, name) is not None]
+        if masks:
+            out[key] = float(np.count_nonzero(np.logical_or.reduce(masks) & hole)) / max(int(hole.sum()), 1)
+    return out
+
+
 def _report(ctx: FillContext, refs: list[ReferenceArtifacts], fusion: Fusion, prog: Progress) -> FillReport:
     supplied = fusion.supplied_fractions(ctx.hole, len(refs))
     used = [r for r in refs if r.usable]
@@ -443,6 +495,7 @@ def _report(ctx: FillContext, refs: list[ReferenceArtifacts], fusion: Fusion, pr
         references=[r.report() for r in refs],
         supplied_fraction=supplied,
         painted_fraction=1.0 - float(sum(supplied)),
+        refused_fraction=_refused_fractions(ctx.hole, used),
         fusion=fusion.report(),
         inpaint_method=ctx.inpainter.description,
         depth_choice=ctx.depth_choice.reason,

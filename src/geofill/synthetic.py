@@ -472,6 +472,18 @@ class SyntheticPair:
     source_to_world: np.ndarray  # 4x4 camera-to-world pose of the source camera
 
 
+def blanked(image: np.ndarray, hole: np.ndarray) -> np.ndarray:
+    """A copy of ``image`` with the ``hole`` pixels set to 0: the restoration input (a hole that shows
+    nothing, so no reference content is refused as the removed object).
+
+    >>> blanked(np.full((1, 2, 3), 9, np.uint8), np.array([[True, False]]))[..., 0].tolist()
+    [[0, 9]]
+    """
+    out = image.copy()
+    out[hole] = 0
+    return out
+
+
 def relative_pose(
     motion: str = "orbit",
     baseline: float | None = None,

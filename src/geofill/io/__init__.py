@@ -11,7 +11,7 @@ with the file (or array) it is about.
 - :mod:`~geofill.io.depth_files`: user-supplied depth maps.
 """
 
-from .arrays import MASK_THRESHOLD, as_rgb_uint8, as_unit_float, validate_pair
+from .arrays import MASK_THRESHOLD, as_rgb_uint8, as_source_mask, as_unit_float, validate_pair
 from .depth_files import read_depth_file
 from .images import (
     IMAGE_SUFFIXES,
@@ -32,6 +32,7 @@ __all__ = [
     "ImageMetadata",
     "LoadedImage",
     "as_rgb_uint8",
+    "as_source_mask",
     "as_unit_float",
     "check_output_dir",
     "check_output_path",

@@ -67,6 +67,20 @@ def validate_pair(
     return hole
 
 
+def as_source_mask(mask: np.ndarray, source: np.ndarray, name: str = "source mask") -> np.ndarray:
+    """A reference's mask (what must never be copied from it) as HxW bool: a bool array, or uint8
+    where >= 127 is masked, the size of its ``source``. Raises ArrayFormatError, MaskSizeError.
+
+    >>> as_source_mask(np.array([[0, 200]], np.uint8), np.zeros((1, 2, 3), np.uint8)).tolist()
+    [[False, True]]
+    """
+    if not (isinstance(mask, np.ndarray) and mask.ndim == 2 and mask.dtype in (np.bool_, np.uint8)):
+        raise ArrayFormatError(f"{name}: expected an HxW bool or uint8 array, got {_describe(mask)}")
+    if mask.shape != source.shape[:2]:
+        raise MaskSizeError(f"{name}: mask is {wxh(mask.shape)} but its reference is {wxh(source.shape)}")
+    return mask if mask.dtype == np.bool_ else mask >= MASK_THRESHOLD
+
+
 def as_unit_float(image: np.ndarray) -> np.ndarray:
     """An image as float32 in [0, 1], the pipeline's inside format: uint8 divided by 255 (in place
     in the new array, one full-size temporary fewer than ``image / 255.0``, same values); float

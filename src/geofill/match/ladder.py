@@ -101,6 +101,9 @@ class Matches:
     budget_spent: bool = False  # the time budget stopped the ladder
     time_s: float = 0.0
     notes: tuple[str, ...] = field(default=())  # why the ladder climbed or stopped
+    #: The source's plain-SIFT keypoints (the first rung's), which the screen stage matches the
+    #: hole's content against; None where that rung did not run.
+    source_features: Features | None = None
 
     def __len__(self) -> int:
         return int(self.pts_target.shape[0])
@@ -328,4 +331,5 @@ def match_pair(
         budget_spent=budget_spent,
         time_s=elapsed,
         notes=tuple(notes),
+        source_features=ladder.features.get(f"sift{cfg.max_features}@{cfg.sift_max_side}", (None, None))[1],
     )

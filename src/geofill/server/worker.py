@@ -77,6 +77,7 @@ class FillOutcome:
     status: str  # "reference" | "single_image"
     fallbacks: tuple[str, ...]
     notices: tuple[str, ...]  # what the user should know about how their request was used
+    refused: str = ""  # what was not copied from the references, in plain words
 
 
 class StageProgress(Progress):
@@ -105,7 +106,9 @@ def run_fill(
 
     result = fill_loaded(target, hole, sources, config, progress=progress)
     r = result.report
-    return FillOutcome(result.image, result.source_map, r.to_dict(), r.status, tuple(r.fallbacks), ())
+    return FillOutcome(
+        result.image, result.source_map, r.to_dict(), r.status, tuple(r.fallbacks), (), r.refused_words()
+    )
 
 
 def coverage_rgba(source_map: np.ndarray) -> np.ndarray:
@@ -178,7 +181,7 @@ def execute(spec: JobSpec, send: Callable[[tuple], None]) -> dict[str, Any]:
         "fallbacks": list(outcome.fallbacks),
         "notices": list(outcome.notices),
         "coverage": rows,
-        "summary": plain_summary(rows),
+        "summary": "; ".join(filter(None, (plain_summary(rows), outcome.refused))),
         "report": outcome.report,
         "timings_s": dict(prog.timings),
     }

@@ -1,0 +1,255 @@
+"""The screen stage: what of a reference's refined render may be copied into the hole.
+
+What the hole shows is the thing the user removes: it is used only as a negative, never as content.
+A static object shows in every reference at its 3D place, and rendering a reference re-pastes it
+(at the surface depth the hole's surroundings give it, so shifted by parallax). Two tests find it:
+
+- *Located in the reference.* SIFT keypoints of the hole's content are matched to the reference
+  (ratio test, mutual, consistent with the pair's epipolar geometry). With enough matches, their
+  homography maps the hole's content into the reference, and the reference pixels that agree with
+  it there are the object; they are not rendered. The homography also maps the hole's margin, which
+  shows background, onto reference pixels that show other background (parallax), which disagree and
+  stay: background revealed behind the object is used.
+- *Seen again in place.* Render pixels whose patch equals the hole's own content at the same place
+  (an object at the depth of its surroundings: a sign, a poster, a stain) are refused, in regions
+  that reach into the hole beyond a patch's width from its border (the border shows background that
+  the render rightly reproduces).
+
+Reference pixels the user masked (``source_masks``) are never rendered. A hole that shows nothing
+(blank or constant) refuses nothing, and the stage then returns the refined render unchanged.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import cv2
+import numpy as np
+
+from .composite.inpaint import mask_window
+from .config import FillConfig
+from .focal import FocalEstimate
+from .match import Matches
+from .match.features import Features, detect_sift, mutual_ratio_matches
+from .pose import PoseEstimate
+from .prepare import WorkingViews
+from .refine import RefinedRender
+from .utils.resolution import config_px, resize_long
+from .utils.rotations import skew
+
+
+@dataclass(frozen=True)
+class ScreenedRender:
+    """The refined render with what may not be copied taken out: ``image`` HxWx3 uint8 (zero where
+    ``alpha`` is False) and ``alpha`` at target resolution (the refined render's own arrays where
+    nothing was refused); ``refused_object`` / ``refused_masked`` (HxW bool or None): hole pixels the
+    render covered but that show the removed object again / come from pixels the user masked."""
+
+    image: np.ndarray
+    alpha: np.ndarray
+    refused_object: np.ndarray | None = None
+    refused_masked: np.ndarray | None = None
+    object_matches: int = 0  # epipolar-consistent SIFT matches of the hole's content in this reference
+    located: bool = False  # the removed object was located in the reference by those matches
+    hole_pixels: int = 0
+
+    def fraction(self, refused: np.ndarray | None) -> float:
+        """Share of the hole in ``refused``."""
+        return 0.0 if refused is None else float(np.count_nonzero(refused)) / max(self.hole_pixels, 1)
+
+    def summary(self) -> str:
+        if self.refused_object is None and self.refused_masked is None:
+            return "nothing to refuse"
+        parts = [
+            f"refused {100 * self.fraction(self.refused_object):.1f}% of the hole showing the removed object"
+        ]
+        if self.refused_masked is not None:
+            parts.append(f"{100 * self.fraction(self.refused_masked):.1f}% masked in the reference")
+        how = f"located by {self.object_matches} matches" if self.located else "not located in the reference"
+        return f"{', '.join(parts)} ({how})"
+
+    def report(self) -> dict[str, Any]:
+        return {
+            "refused_object_fraction": self.fraction(self.refused_object),
+            "refused_masked_fraction": self.fraction(self.refused_masked),
+            "object_matches": self.object_matches,
+            "object_located": self.located,
+        }
+
+
+def shows_object(target: np.ndarray, hole: np.ndarray, min_texture: float) -> bool:
+    """Whether the hole of ``target`` (as given, before blanking) shows something to remove: its grey
+    values vary by more than ``min_texture`` (standard deviation, 0-255). A blanked or constant hole
+    does not.
+
+    >>> img = np.zeros((8, 8, 3), np.uint8); hole = np.ones((8, 8), bool)
+    >>> shows_object(img, hole, 2.0), shows_object(np.arange(192, dtype=np.uint8).reshape(8, 8, 3), hole, 2.0)
+    (False, True)
+    """
+    grey = cv2.cvtColor(np.ascontiguousarray(target), cv2.COLOR_RGB2GRAY)[hole]
+    return grey.size > 0 and float(grey.std()) > min_texture
+
+
+def screen_render(
+    refined: RefinedRender,
+    hole: np.ndarray,
+    source: np.ndarray,
+    shown: np.ndarray | None,
+    exclude: np.ndarray | None,
+    views: WorkingViews,
+    matches: Matches,
+    focal: FocalEstimate,
+    pose: PoseEstimate,
+    cfg: FillConfig,
+) -> ScreenedRender:
+    """Take out of ``refined`` what shows the removed object again and what comes from reference
+    pixels the user masked. ``shown``: the target as the user gave it (HxWx3 uint8) when its hole
+    shows something to remove, else None; ``exclude``: the reference's own mask (HxW bool at the
+    source's input size, True = never copy) or None; ``source``: the reference at input size."""
+    n_hole = int(np.count_nonzero(hole))
+    if shown is None and exclude is None:
+        return ScreenedRender(refined.image, refined.alpha, hole_pixels=n_hole)
+    rows, cols = refined.render.window()
+    field = refined.render
+    covered = refined.alpha[rows, cols] & hole[rows, cols]
+    refused_masked = refused_object = None
+    if exclude is not None:
+        refused_masked = np.zeros(hole.shape, bool)
+        refused_masked[rows, cols] = _sampled(exclude, field, rows, cols) & covered
+    object_matches, located = 0, False
+    if shown is not None:
+        sc = cfg.screen
+        in_source, object_matches = locate_object(shown, hole, source, views, matches, focal, pose, cfg)
+        located = in_source is not None
+        refused_object = np.zeros(hole.shape, bool)
+        if located:
+            refused_object[rows, cols] = _sampled(in_source, field, rows, cols) & covered
+        if sc.appearance_threshold > 0:
+            seen = seen_again(
+                refined.image[rows, cols], shown[rows, cols], hole[rows, cols], covered, hole.shape, sc
+            )
+            refused_object[rows, cols] |= seen
+    refused = np.zeros(hole.shape, bool)
+    for r in (refused_masked, refused_object):
+        if r is not None:
+            refused |= r
+    if not refused.any():
+        return ScreenedRender(
+            refined.image, refined.alpha, refused_object, refused_masked, object_matches, located, n_hole
+        )
+    alpha = refined.alpha & ~refused
+    image = refined.image.copy()
+    image[refused] = 0
+    return ScreenedRender(image, alpha, refused_object, refused_masked, object_matches, located, n_hole)
+
+
+def _sampled(mask: np.ndarray, field: Any, rows: slice, cols: slice) -> np.ndarray:
+    """``mask`` (source pixels, input size) read at the correspondence field's window (nearest)."""
+    return (
+        cv2.remap(
+            mask.astype(np.uint8), field.map_x[rows, cols], field.map_y[rows, cols], cv2.INTER_NEAREST,
+            borderMode=cv2.BORDER_CONSTANT, borderValue=0,
+        )
+        > 0
+    )  # fmt: skip
+
+
+def locate_object(
+    shown: np.ndarray,
+    hole: np.ndarray,
+    source: np.ndarray,
+    views: WorkingViews,
+    matches: Matches,
+    focal: FocalEstimate,
+    pose: PoseEstimate,
+    cfg: FillConfig,
+) -> tuple[np.ndarray | None, int]:
+    """(HxW bool at the source's input size where the reference shows the removed object, or None
+    when it cannot be located; the number of epipolar-consistent matches of the hole's content)."""
+    sc, mc = cfg.screen, cfg.matching
+    shown_w = resize_long(shown, cfg.working_max_side)
+    hole_w = views.hole
+    feats_s = matches.source_features
+    if feats_s is None:
+        return None, 0
+    # SIFT on the hole's window only (the whole image would cost as much as the match stage).
+    rows, cols = mask_window(hole_w, 16)
+    grey_t = cv2.cvtColor(np.ascontiguousarray(shown_w[rows, cols]), cv2.COLOR_RGB2GRAY)
+    detect = cv2.dilate(hole_w[rows, cols].astype(np.uint8) * 255, np.ones((3, 3), np.uint8))
+    feats_t = detect_sift(grey_t, mc.max_features, detect)
+    if len(feats_t) < sc.min_object_matches:
+        return None, 0
+    feats_t = Features(feats_t.pts + [cols.start, rows.start], feats_t.desc)
+    pairs = mutual_ratio_matches(feats_t.desc, feats_s.desc, mc.ratio, True)
+    pts_t, pts_s = feats_t.pts[pairs[:, 0]], feats_s.pts[pairs[:, 1]]
+    if pose.status == "ok":
+        F = _fundamental(pose.T, focal.K_target.K, focal.K_source.K)
+        keep = _sampson_px(F, pts_t, pts_s) < 2.0 * views.ransac_px
+        pts_t, pts_s = pts_t[keep], pts_s[keep]
+    n = len(pts_t)
+    if n < sc.min_object_matches:
+        return None, n
+    H, inliers = cv2.findHomography(pts_t, pts_s, cv2.USAC_MAGSAC, 3.0 * views.ransac_px)
+    if H is None or int(inliers.sum()) < sc.min_object_matches // 2:
+        return None, n
+    hs, ws = views.source.shape[:2]
+    # The hole's content seen from the reference through the homography, and where it lands.
+    warped = cv2.warpPerspective(shown_w, H, (ws, hs), flags=cv2.INTER_LINEAR)
+    landed = cv2.warpPerspective(hole_w.astype(np.uint8), H, (ws, hs), flags=cv2.INTER_NEAREST) > 0
+    source_w = resize_long(source, cfg.working_max_side)
+    k = _odd(config_px(sc.appearance_patch_px, views.source.shape))
+    diff = cv2.blur(np.abs(warped.astype(np.float32) - source_w.astype(np.float32)).mean(axis=2), (k, k))
+    agree = landed & (diff < 2.0 * max(sc.appearance_threshold, 1.0))
+    r = _odd(2.0 * config_px(sc.object_margin_px, views.source.shape))
+    obj = cv2.dilate(agree.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (r, r))) > 0
+    full = cv2.resize(
+        obj.astype(np.uint8), (source.shape[1], source.shape[0]), interpolation=cv2.INTER_NEAREST
+    )
+    return full > 0, n
+
+
+def seen_again(
+    render: np.ndarray,
+    shown: np.ndarray,
+    hole: np.ndarray,
+    covered: np.ndarray,
+    shape: tuple[int, ...],
+    sc: Any,
+) -> np.ndarray:
+    """Covered hole pixels (of a window) where the render's patch equals the hole's own content: in
+    regions that reach more than a patch's width into the hole, on textured content only."""
+    k = _odd(config_px(sc.appearance_patch_px, shape))
+    diff = cv2.blur(np.abs(render.astype(np.float32) - shown.astype(np.float32)).mean(axis=2), (k, k))
+    grey = cv2.cvtColor(np.ascontiguousarray(shown), cv2.COLOR_RGB2GRAY).astype(np.float32)
+    mean = cv2.blur(grey, (k, k))
+    std = np.sqrt(np.maximum(cv2.blur(grey * grey, (k, k)) - mean * mean, 0.0))
+    candidate = covered & (diff < sc.appearance_threshold) & (std > sc.appearance_min_texture)
+    if not candidate.any():
+        return candidate
+    inner = cv2.distanceTransform(hole.astype(np.uint8), cv2.DIST_L2, 3) > k
+    n, labels = cv2.connectedComponents(candidate.astype(np.uint8), connectivity=8)
+    deep = np.zeros(n, bool)
+    deep[np.unique(labels[candidate & inner])] = True
+    deep[0] = False
+    return deep[labels]
+
+
+def _odd(px: float) -> int:
+    return max(1, round(px) // 2 * 2 + 1)
+
+
+def _fundamental(T: np.ndarray, K_t: np.ndarray, K_s: np.ndarray) -> np.ndarray:
+    """F with x_t^T F x_s = 0 for the pose ``T`` (source -> target)."""
+    return np.linalg.inv(K_t).T @ skew(T[:3, 3]) @ T[:3, :3] @ np.linalg.inv(K_s)
+
+
+def _sampson_px(F: np.ndarray, pts_t: np.ndarray, pts_s: np.ndarray) -> np.ndarray:
+    """Sampson distance (px) of each correspondence to the epipolar geometry ``F``."""
+    xs = np.column_stack([pts_s, np.ones(len(pts_s))])
+    xt = np.column_stack([pts_t, np.ones(len(pts_t))])
+    Fx = xs @ F.T
+    Ftx = xt @ F
+    num = np.einsum("ij,ij->i", xt, Fx) ** 2
+    den = Fx[:, 0] ** 2 + Fx[:, 1] ** 2 + Ftx[:, 0] ** 2 + Ftx[:, 1] ** 2
+    return np.sqrt(num / np.maximum(den, 1e-12))
