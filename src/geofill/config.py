@@ -711,6 +711,12 @@ class ScreenConfig:
         "SIFT matches between the hole's content and a reference (epipolar-consistent with the pair's pose) "
         "needed to locate the removed object in that reference.",
     )
+    object_epipolar_px: Annotated[float, Range(0, 1000)] = setting(
+        10.0,
+        "Those matches must lie within this Sampson distance (px) of the pair's epipolar geometry (a static "
+        "object obeys it; loose because the pose is estimated from the scene, and 1 degree of rotation moves "
+        "the lines by ~15 px); the homography and the appearance check then verify them.",
+    )
     object_margin_px: Annotated[float, Range(0, 1000)] = setting(
         12.0,
         "The removed object's region located in a reference is grown by this (px): its silhouette there is "

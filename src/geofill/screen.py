@@ -185,7 +185,7 @@ def locate_object(
     pts_t, pts_s = feats_t.pts[pairs[:, 0]], feats_s.pts[pairs[:, 1]]
     if pose.status == "ok":
         F = _fundamental(pose.T, focal.K_target.K, focal.K_source.K)
-        keep = _sampson_px(F, pts_t, pts_s) < 2.0 * views.ransac_px
+        keep = _sampson_px(F, pts_t, pts_s) < sc.object_epipolar_px * views.px_scale
         pts_t, pts_s = pts_t[keep], pts_s[keep]
     n = len(pts_t)
     if n < sc.min_object_matches:
