@@ -377,7 +377,10 @@ def build_parser() -> argparse.ArgumentParser:
         "batch",
         help="fill many images: folders matched by stem or a manifest; parallel, resumable, Ray",
         description="Fill every image of --images (its mask: same stem in --masks, or one mask file for "
-        "all) or every row of --manifest, writing OUT/{stem}.png and OUT/results.jsonl. Exit status: 0 when "
+        "all) or every row of --manifest, writing OUT/{stem}.png and OUT/results.jsonl. A reference's "
+        "mask (what must never be copied from it: a passer-by, a parked car) is <ref stem>.mask.png beside "
+        "it (any image format; never a target or reference itself), or the manifest's source_masks "
+        "column. Exit status: 0 when "
         f"every item was filled from a reference, {EXIT_FELL_BACK} when some fell back to single-image "
         f"inpainting (unless --allow-fallback), {EXIT_ITEMS_FAILED} when some failed, 130 on Ctrl-C.",
     )
@@ -387,11 +390,20 @@ def build_parser() -> argparse.ArgumentParser:
     )
     refs = p.add_mutually_exclusive_group()
     refs.add_argument(
-        "--sources", metavar="DIR", help="other photos of the shoot: the best --max-refs per target are used"
+        "--sources",
+        metavar="DIR",
+        help="other photos of the shoot: the best --max-refs per target are used; DIR/<stem>.mask.png "
+        "masks what must never be copied from DIR/<stem>.jpg",
     )
-    refs.add_argument("--sources-per-image", metavar="DIR", help="DIR/<stem>/ holds each image's references")
     refs.add_argument(
-        "--manifest", metavar="FILE", help="CSV or JSONL: target, mask, sources, optional output and set"
+        "--sources-per-image",
+        metavar="DIR",
+        help="DIR/<stem>/ holds each image's references (and their masks, <ref stem>.mask.png)",
+    )
+    refs.add_argument(
+        "--manifest",
+        metavar="FILE",
+        help="CSV or JSONL: target, mask, sources, optional source_masks, output and set",
     )
     p.add_argument("--out", required=True, metavar="DIR", help="output folder (created if missing)")
     p.add_argument(

@@ -48,13 +48,10 @@ def split_reference_masks(files: Iterable[Path]) -> tuple[list[Path], dict[Path,
         by_stem.setdefault(p.stem.lower(), []).append(p)
     masks: dict[Path, Path] = {}
     for m in (p for p in files if is_reference_mask(p)):
-        stem = m.stem[: -len(MASK_STEM_SUFFIX)].lower()
-        owners = by_stem.get(stem, [])
+        stem = m.stem[: -len(MASK_STEM_SUFFIX)]
+        owners = by_stem.get(stem.lower(), [])
         if not owners:
-            raise InputError(
-                f"{m}: reference mask without a reference: no image named {m.stem[: -len(MASK_STEM_SUFFIX)]}.* "
-                "beside it"
-            )
+            raise InputError(f"{m}: reference mask without a reference: no image named {stem}.* beside it")
         if len(owners) > 1:
             raise InputError(f"{m}: reference mask of which reference? {', '.join(p.name for p in owners)}")
         if owners[0] in masks:
@@ -72,6 +69,7 @@ def read_reference_mask(
     mask = read_mask(path, max_pixels=max_pixels)
     if mask.shape != source.shape[:2]:
         raise MaskSizeError(
-            f"{path}: reference mask is {wxh(mask.shape)} but its reference {source_name} is {wxh(source.shape)}"
+            f"{path}: reference mask is {wxh(mask.shape)} "
+            f"but its reference {source_name} is {wxh(source.shape)}"
         )
     return mask
