@@ -304,7 +304,8 @@ def cmd_serve(args: argparse.Namespace) -> int:
         queue_size=args.queue,
         job_ttl_s=args.job_ttl,
         max_upload_bytes=int(args.max_upload_mb * 1024 * 1024),
-        max_request_bytes=int(args.max_upload_mb * 1024 * 1024) * (args.max_sources + 2),
+        # target, mask, and each reference with its mask
+        max_request_bytes=int(args.max_upload_mb * 1024 * 1024) * (2 * args.max_sources + 2),
         max_pixels=args.max_pixels,
         max_sources=args.max_sources,
     )
