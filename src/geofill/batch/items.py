@@ -131,12 +131,12 @@ def items_from_folders(
         else:
             folder = sources_per_image / target.stem
             try:
-                found, masks = split_reference_masks(image_files(folder)) if folder.is_dir() else ([], {})
+                found, beside = split_reference_masks(image_files(folder)) if folder.is_dir() else ([], {})
             except InputError as exc:
-                found, masks = [], {}
+                found, beside = [], {}
                 item = replace(item, error=item.error or f"{target}: {exc}")
             refs = tuple(str(p) for p in found)
-            item = replace(item, sources=refs, reference_masks={str(p): str(m) for p, m in masks.items()})
+            item = replace(item, sources=refs, reference_masks={str(p): str(m) for p, m in beside.items()})
             if not refs and not item.error:
                 item = replace(item, error=f"{target}: no reference images in {folder}")
         items.append(item)
