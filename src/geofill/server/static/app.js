@@ -7,7 +7,9 @@
 
 const $ = (id) => document.getElementById(id);
 const HOLE_RGB = "rgb(255, 0, 160)"; // the target's hole
-const KEEP_OUT_RGB = "rgb(0, 190, 255)"; // a reference's mask: never copied into the hole
+// A reference's mask: never copied into the hole. Sent as the mask canvas's PNG, read by its alpha;
+// a reference masked all over has a uniform alpha and is read by luminance, which is 141 >= 127 here.
+const KEEP_OUT_RGB = "rgb(0, 190, 255)";
 const MASK_OPACITY = 0.45;
 const POLL_MS = 300;
 const THUMB_SIDE = 184; // px: long side of a reference's mask thumbnail
