@@ -193,3 +193,45 @@ def test_ray_without_the_extra_is_a_one_line_error(pairs, tmp_path, monkeypatch,
         "geofill: error: --ray needs Ray: pip install 'geofill[ray]'"
     ]
     assert not (tmp_path / "out" / "results.jsonl").exists()
+
+
+def test_batch_reference_masks_from_folders_and_a_manifest(tmp_path):
+    """The same target three times: its reference unmasked, masked by ``view.mask.png`` beside it,
+    and with a mask of another size; then the masked one again through a manifest's source_masks."""
+    p = make_pair(seed=0, width=320, height=240)
+    keep_out = np.zeros(p.hole.shape, np.uint8)
+    keep_out[:, 240:] = 255  # the right of the source: where most of the hole comes from
+    root = _shoot(tmp_path, {"plain": p, "masked": p, "sized": p})
+    refs = root / "refs"
+    assert cv2.imwrite(str(refs / "masked" / "view.mask.png"), keep_out)
+    assert cv2.imwrite(str(refs / "sized" / "view.mask.png"), keep_out[:100, :100])
+    out = tmp_path / "out"
+    assert _batch(root, out, "--sources-per-image", refs, "--jobs", "2") == EXIT_ITEMS_FAILED
+    by = {r["item"]: r for r in _records(out)}
+    plain, masked, sized = by["plain"], by["masked"], by["sized"]
+    assert plain["status"] == masked["status"] == "reference"
+    assert plain["reference_masks"] == [None] and plain["refused_fraction"] == {}
+    assert masked["reference_masks"] == [str(refs / "masked" / "view.mask.png")]
+    assert masked["refused_fraction"]["masked"] > 0.2
+    assert masked["coverage"] < plain["coverage"] - 0.2  # less of the hole from the reference
+    hole = p.hole
+    a, b = _read_rgb(out / "plain.png"), _read_rgb(out / "masked.png")
+    assert np.array_equal(a[~hole], b[~hole]) and not np.array_equal(a[hole], b[hole])
+    assert sized["status"] == "failed" and sized["error"] == (
+        f"{refs / 'sized' / 'view.mask.png'}: reference mask is 100x100 "
+        f"but its reference {refs / 'sized' / 'view.png'} is 320x240"
+    )
+
+    manifest = tmp_path / "batch.csv"
+    manifest.write_text(
+        "target,mask,sources,source_masks,output\n"
+        "images/masked.png,masks/masked.png,refs/plain/view.png,refs/masked/view.mask.png,again.png\n"
+    )
+    assert (
+        main([str(a) for a in ("batch", "--manifest", manifest, "--out", tmp_path / "out2", "--jobs", "1")])
+        == 0
+    )
+    (again,) = _records(tmp_path / "out2")
+    assert again["reference_masks"] == [str(root / "refs/masked/view.mask.png")]
+    assert again["refused_fraction"] == masked["refused_fraction"]
+    assert np.array_equal(_read_rgb(tmp_path / "out2" / "again.png"), b)

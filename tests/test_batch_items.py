@@ -167,3 +167,97 @@ def test_pick_references_by_overlap_around_the_hole():
     assert all(s.matches_near_hole <= s.matches_verified for s in scores)
     one, _ = pick_references(pair.target, pair.hole, candidates, cfg, max_refs=1)
     assert [p.path for p in one] == [best]
+
+
+def test_reference_masks_beside_the_references(tmp_path):
+    """``<stem>.mask.png`` beside a reference is its mask: never a reference, never a target; a mask
+    with no reference of its stem fails its item (per-image folders) or the batch (--sources)."""
+    _touch_images(tmp_path / "img", ["a.png", "b.png"])
+    _touch_images(tmp_path / "masks", ["a.png", "b.png"])
+    _touch_images(tmp_path / "src" / "a", ["s0.png", "s0.mask.png", "s1.jpg"])
+    _touch_images(tmp_path / "src" / "b", ["s.png", "x.mask.png"])
+    items = items_from_folders(tmp_path / "img", tmp_path / "masks", sources_per_image=tmp_path / "src")
+    a, b = items
+    src = tmp_path / "src"
+    assert a.sources == (str(src / "a/s0.png"), str(src / "a/s1.jpg")) and not a.error
+    assert a.reference_masks == {str(src / "a/s0.png"): str(src / "a/s0.mask.png")}
+    assert b.error == (
+        f"{tmp_path / 'img/b.png'}: {src / 'b/x.mask.png'}: reference mask without a reference: "
+        "no image named x.* beside it"
+    )
+
+    # one folder for targets and references: b.mask.png masks b.png when b.png is a's reference
+    shoot = tmp_path / "shoot"
+    _touch_images(shoot, ["a.png", "b.png", "b.mask.png"])
+    items = items_from_folders(shoot, tmp_path / "masks", sources=shoot, max_refs=2)
+    assert [i.name for i in items] == ["a", "b"]
+    assert items[0].candidates == (str(shoot / "b.png"),)
+    assert items[0].reference_masks == {str(shoot / "b.png"): str(shoot / "b.mask.png")}
+    assert items[1].candidates == (str(shoot / "a.png"),) and items[1].reference_masks == {}
+    _touch_images(shoot, ["c.mask.png"])
+    with pytest.raises(InputError, match=r"c\.mask\.png: reference mask without a reference"):
+        items_from_folders(shoot, tmp_path / "masks", sources=shoot)
+
+
+def test_manifest_source_masks_follow_the_sources(tmp_path):
+    csv_path = tmp_path / "batch.csv"
+    csv_path.write_text(
+        "target,mask,sources,source_masks\n"
+        "t1.png,m.png,s1.png;s2.png,k1.png;\n"
+        "t2.png,m.png,s1.png;s2.png,;k2.png\n"
+        "t3.png,m.png,s1.png;s2.png,k1.png\n"
+        "t4.png,m.png,s1.png,k1.png;k2.png\n"
+        "t5.png,m.png,s1.png,\n"
+    )
+    items = read_manifest(csv_path, FillConfig())
+    s1, s2, k1, k2 = (str(tmp_path / n) for n in ("s1.png", "s2.png", "k1.png", "k2.png"))
+    assert items[0].reference_masks == {s1: k1} and not items[0].error
+    assert items[1].reference_masks == {s2: k2}
+    assert items[2].reference_masks == {s1: k1}  # fewer masks than sources: the last ones have none
+    assert items[3].error == (
+        f"{csv_path}:5: 2 source masks for 1 sources (one per source, in their order; empty for none)"
+    )
+    assert items[4].reference_masks == {} and not items[4].error
+
+    jsonl_path = tmp_path / "batch.jsonl"
+    rows = [
+        {
+            "target": "t1.png",
+            "mask": "m.png",
+            "sources": ["s1.png", "s2.png"],
+            "source_masks": [None, "k2.png"],
+        },
+        {"target": "t2.png", "mask": "m.png", "sources": "s1.png", "source_masks": "/abs/k.png"},
+        {"target": "t3.png", "mask": "m.png", "sources": ["s1.png"], "source_masks": [3]},
+    ]
+    jsonl_path.write_text("\n".join(json.dumps(r) for r in rows) + "\n")
+    items = read_manifest(jsonl_path, FillConfig())
+    assert items[0].reference_masks == {s2: k2}
+    assert items[1].reference_masks == {s1: "/abs/k.png"}
+    assert items[2].error == f"{jsonl_path}:3: 'source_masks' must list a mask file (or nothing) per source"
+
+
+def test_masked_matches_do_not_count_when_picking_references():
+    """A candidate whose view of the hole is masked scores no matches there and is not picked."""
+    pair = make_pair(seed=3, width=320, height=240)
+    near = make_pair(seed=3, width=320, height=240, baseline=0.25)
+    candidates = [LoadedImage(pair.source, "orbit.png"), LoadedImage(near.source, "near.png")]
+    everything = np.ones(pair.source.shape[:2], bool)
+    cfg = FillConfig()
+    picked, scores = pick_references(
+        pair.target,
+        pair.hole,
+        candidates,
+        cfg,
+        max_refs=2,
+        masks={"orbit.png": ("orbit.mask.png", everything)},
+    )
+    by = {s.path: s for s in scores}
+    assert by["orbit.png"].matches_near_hole == 0 and by["orbit.png"].matches_verified > 0
+    assert by["orbit.png"].to_dict()["mask"] == "orbit.mask.png" and "mask" not in by["near.png"].to_dict()
+    assert [p.path for p in picked] == ["near.png"]
+    left = np.zeros_like(everything)
+    left[:, :160] = True
+    _, half = pick_references(pair.target, pair.hole, candidates[:1], cfg, 1, {"orbit.png": ("m.png", left)})
+    _, none = pick_references(pair.target, pair.hole, candidates[:1], cfg, 1)
+    assert 0 < half[0].matches_near_hole < none[0].matches_near_hole

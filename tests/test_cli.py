@@ -13,7 +13,7 @@ import pytest
 
 from geofill.cli import build_parser, main
 from geofill.config import DepthConfig, FillConfig, choices
-from geofill.synthetic import make_pair
+from geofill.synthetic import blanked, make_pair
 
 
 def _write_rgb(path, rgb):
@@ -192,3 +192,114 @@ def test_command_exits_with_mains_status(files, tmp_path):
     bad = subprocess.run([sys.executable, "-m", "geofill.cli", *args], capture_output=True, text=True)
     assert bad.returncode == main(args) != 0
     assert bad.stderr.strip().startswith("geofill: error:") and "missing.png" in bad.stderr
+
+
+@pytest.fixture(scope="module")
+def masked_files(tmp_path_factory):
+    """A pair whose hole shows nothing, the source's mask over the right of it (where most of the
+    hole comes from), one of another size, and the source with its mask beside it in refs/."""
+    d = tmp_path_factory.mktemp("masked")
+    p = make_pair(seed=0, width=320, height=240)
+    _write_rgb(d / "target.png", blanked(p.target, p.hole))
+    _write_rgb(d / "source.png", p.source)
+    cv2.imwrite(str(d / "mask.png"), p.hole.astype(np.uint8) * 255)
+    keep_out = np.zeros(p.hole.shape, np.uint8)
+    keep_out[:, 240:] = 255
+    cv2.imwrite(str(d / "keep_out.png"), keep_out)
+    cv2.imwrite(str(d / "small.png"), keep_out[:100, :100])
+    (d / "refs").mkdir()
+    _write_rgb(d / "refs" / "view.png", p.source)
+    cv2.imwrite(str(d / "refs" / "view.mask.png"), keep_out)
+    return d
+
+
+def _report(dbg) -> dict:
+    return json.loads((dbg / "report.json").read_text())
+
+
+def test_source_mask_pixels_are_never_copied(masked_files, tmp_path, capsys):
+    """The same fill with and without --source-mask: the masked one refuses part of the hole and
+    takes less of it from the reference; --sources DIR finds view.mask.png beside view.png."""
+    d = masked_files
+    base = ["fill", "--target", d / "target.png", "--mask", d / "mask.png", "-o"]
+    code, err = run(
+        [*base, tmp_path / "plain.png", "--source", d / "source.png", "--debug-dir", tmp_path / "p"], capsys
+    )
+    assert code == 0
+    plain = _report(tmp_path / "p")
+    masked_args = [
+        "--source",
+        d / "source.png",
+        "--source-mask",
+        d / "keep_out.png",
+        "--debug-dir",
+        tmp_path / "m",
+    ]
+    code, err = run([*base, tmp_path / "masked.png", *masked_args], capsys)
+    assert code == 0
+    masked = _report(tmp_path / "m")
+    assert plain["refused_fraction"].get("masked", 0.0) == 0.0
+    assert masked["refused_fraction"]["masked"] > 0.2
+    assert masked["supplied_fraction"][0] < plain["supplied_fraction"][0] - 0.2
+    assert f"geofill: {d / 'source.png'}: 25% of it is never copied (masked by {d / 'keep_out.png'})" in err
+    assert err[-1].endswith("% of the hole was not copied because it was masked in the references")
+    # the hole pixels differ where the reference was refused; the rest of the image is the target's
+    hole = cv2.imread(str(d / "mask.png"), cv2.IMREAD_GRAYSCALE) > 127
+    a, b = cv2.imread(str(tmp_path / "plain.png")), cv2.imread(str(tmp_path / "masked.png"))
+    assert np.array_equal(a[~hole], b[~hole]) and not np.array_equal(a[hole], b[hole])
+
+    code, err = run(
+        [*base, tmp_path / "folder.png", "--sources", d / "refs", "--debug-dir", tmp_path / "f"], capsys
+    )
+    assert code == 0
+    folder = _report(tmp_path / "f")
+    assert len(folder["references"]) == 1  # view.mask.png is no reference
+    assert folder["refused_fraction"] == masked["refused_fraction"]
+    assert np.array_equal(cv2.imread(str(tmp_path / "folder.png")), b)
+
+
+@pytest.mark.parametrize(
+    ("case", "code", "needle"),
+    [
+        ("wrong_size", 2, "small.png: reference mask is 100x100 but its reference {d}/source.png is 320x240"),
+        ("before_source", 2, "--source-mask: {d}/keep_out.png: no --source before it"),
+        ("two_for_one", 2, "--source {d}/source.png has a mask already ({d}/keep_out.png)"),
+        (
+            "no_reference",
+            2,
+            "{d}/orphans/street.mask.png: reference mask without a reference: no image named street.*",
+        ),
+        ("folder_wrong_size", 2, "{d}/sized/view.mask.png: reference mask is 100x100 but its reference"),
+    ],
+)
+def test_bad_source_masks_are_one_line_naming_the_file(masked_files, tmp_path, capsys, case, code, needle):
+    d = masked_files
+    args = ["fill", "--target", d / "target.png", "--mask", d / "mask.png", "-o", tmp_path / "out.png"]
+    args += {
+        "wrong_size": ["--source", d / "source.png", "--source-mask", d / "small.png"],
+        "before_source": ["--source-mask", d / "keep_out.png", "--source", d / "source.png"],
+        "two_for_one": [
+            "--source",
+            d / "source.png",
+            "--source-mask",
+            d / "keep_out.png",
+            "--source-mask",
+            d / "small.png",
+        ],
+        "no_reference": ["--source", d / "source.png", "--sources", d / "orphans"],
+        "folder_wrong_size": ["--sources", d / "sized"],
+    }[case]
+    (d / "orphans").mkdir(exist_ok=True)
+    _write_rgb(d / "orphans" / "view.png", cv2.imread(str(d / "source.png"))[..., ::-1])
+    cv2.imwrite(str(d / "orphans" / "street.mask.png"), np.zeros((240, 320), np.uint8))
+    (d / "sized").mkdir(exist_ok=True)
+    _write_rgb(d / "sized" / "view.png", cv2.imread(str(d / "source.png"))[..., ::-1])
+    cv2.imwrite(str(d / "sized" / "view.mask.png"), np.zeros((100, 100), np.uint8))
+    try:
+        got, err = run(args, capsys)
+    except SystemExit as exc:  # argparse's usage errors
+        got, err = exc.code, capsys.readouterr().err.strip().splitlines()
+    assert got == code
+    assert len(err) == 1 and err[0].startswith("geofill: error:")
+    assert needle.format(d=d) in err[0], err[0]
+    assert not (tmp_path / "out.png").exists()

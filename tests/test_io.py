@@ -24,6 +24,7 @@ from geofill.errors import (
     EmptyMaskError,
     ImageTooLargeError,
     ImageTooSmallError,
+    InputError,
     MaskSizeError,
     MaskTooLargeError,
     MissingExtraError,
@@ -669,3 +670,23 @@ def test_long_names_are_errors_not_crashes(tmp_path):
         io.check_output_dir(tmp_path / "f")
     io.check_output_dir(tmp_path / "new" / "deeper")
     assert not (tmp_path / "new").exists()  # a check creates nothing
+
+
+def test_reference_masks_in_a_folder_are_matched_by_stem():
+    refs, masks = io.split_reference_masks(
+        [Path("d/a.jpg"), Path("d/B.MASK.png"), Path("d/b.png"), Path("d/c.tif"), Path("d/c.mask.jpg")]
+    )
+    assert refs == [Path("d/a.jpg"), Path("d/b.png"), Path("d/c.tif")]
+    assert masks == {Path("d/b.png"): Path("d/B.MASK.png"), Path("d/c.tif"): Path("d/c.mask.jpg")}
+    with pytest.raises(
+        InputError, match=r"^d/x\.mask\.png: reference mask without a reference: no image named x\.\*"
+    ):
+        io.split_reference_masks([Path("d/a.jpg"), Path("d/x.mask.png")])
+    with pytest.raises(
+        InputError, match=r"^d/a\.mask\.png: reference mask of which reference\? a\.jpg, a\.png$"
+    ):
+        io.split_reference_masks([Path("d/a.jpg"), Path("d/a.png"), Path("d/a.mask.png")])
+    with pytest.raises(
+        InputError, match=r"^d/a\.mask\.png: a\.jpg has another mask already \(a\.mask\.jpg\)$"
+    ):
+        io.split_reference_masks([Path("d/a.jpg"), Path("d/a.mask.jpg"), Path("d/a.mask.png")])

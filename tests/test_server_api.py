@@ -31,7 +31,7 @@ from PIL import Image
 from geofill.server.app import create_app
 from geofill.server.jobs import ServerSettings
 from geofill.server.schema import config_fields, flatten
-from geofill.synthetic import make_pair
+from geofill.synthetic import blanked, make_pair
 
 W, H = 320, 240
 
@@ -444,3 +444,87 @@ def test_stop_leaves_no_temp_files_or_workers(tmp_path):
         assert len(pids) == 1
     assert list(tmp_path.iterdir()) == []
     assert not any(psutil.pid_exists(p) and psutil.Process(p).status() != psutil.STATUS_ZOMBIE for p in pids)
+
+
+def _keep_out() -> np.ndarray:
+    """A reference mask over the right of the synthetic source (where most of the hole comes from)."""
+    m = np.zeros((H, W), np.uint8)
+    m[:, 240:] = 255
+    return m
+
+
+def test_source_mask_is_never_copied(tmp_path, pair):
+    """The same fill with and without ``source_mask_1``: with it, part of the hole is refused as
+    masked and less of it comes from the reference."""
+    base = [
+        ("target", ("t.png", png(blanked(pair.target, pair.hole)))),
+        ("mask", ("m.png", png(pair.hole.astype(np.uint8) * 255))),
+        ("sources", ("s.png", png(pair.source))),
+    ]
+    app = create_app(ServerSettings(workers=1, temp_parent=str(tmp_path)))
+    with TestClient(app) as client:
+        r = client.post("/api/v1/fill", files=[*base, ("source_mask_1", ("k.png", png(_keep_out())))])
+        assert r.status_code == 202, r.text
+        masked_id = r.json()["id"]
+        folder = app.state.jobs.get(masked_id).folder
+        assert sorted(p.name for p in folder.iterdir()) == ["mask", "source-1", "source-mask-1", "target"]
+        plain_id = client.post("/api/v1/fill", files=base).json()["id"]
+        masked, plain = wait_for(client, masked_id), wait_for(client, plain_id)
+    assert masked["state"] == plain["state"] == "done"
+    assert masked["source_masks"] == [1] and plain["source_masks"] == []
+    assert masked["report"]["refused_fraction"]["masked"] > 0.2
+    assert plain["report"]["refused_fraction"].get("masked", 0.0) == 0.0
+    assert masked["report"]["supplied_fraction"][0] < plain["report"]["supplied_fraction"][0] - 0.2
+    assert "% of the hole was not copied because it was masked in the references" in masked["summary"]
+    assert "masked" not in plain["summary"]
+
+
+@pytest.mark.parametrize(
+    ("parts", "words"),
+    [
+        (
+            [("source_mask_1", "small")],
+            "source_mask_1: reference mask is 100x100 but its reference sources[1] is 320x240",
+        ),
+        (
+            [("source_mask_2", "keep_out")],
+            "source_mask_2: a mask for sources[2], but 1 reference photo(s) given",
+        ),
+        ([("source_mask_1", "keep_out")] * 2, "the form field 'source_mask_1' is given twice"),
+        (
+            [("source_mask_4", "keep_out")],
+            "unknown form field 'source_mask_4' "
+            "(expected target, mask, sources, source_mask_1 ... source_mask_3, config)",
+        ),
+        ([("source_mask_0", "keep_out")], "unknown form field 'source_mask_0'"),
+        ([("source_mask_1", "corrupt")], "source_mask_1: not a PNG, JPEG, WebP, TIFF or HEIC image"),
+    ],
+)
+def test_bad_source_masks_are_400_naming_the_field(idle, upload, parts, words):
+    client, app, _ = idle
+    data = {
+        "small": png(np.full((100, 100), 255, np.uint8)),
+        "keep_out": png(_keep_out()),
+        "corrupt": b"nope",
+    }
+    r = client.post("/api/v1/fill", files=files(upload) + [(name, ("k.png", data[k])) for name, k in parts])
+    assert r.status_code == 400, r.text
+    assert r.json()["detail"] == words or words in r.json()["detail"]
+    assert app.state.jobs.counts() == {}
+    assert list(app.state.jobs.root.iterdir()) == []
+
+
+def test_source_mask_as_text_is_refused_and_openapi_lists_one_per_source(idle, upload):
+    client, _, _ = idle
+    r = client.post("/api/v1/fill", files=files(upload), data={"source_mask_1": "text"})
+    assert r.status_code == 400 and "'source_mask_1' must be a file" in r.json()["detail"]
+    form = client.get("/openapi.json").json()["paths"]["/api/v1/fill"]["post"]["requestBody"]
+    props = form["content"]["multipart/form-data"]["schema"]["properties"]
+    assert [k for k in props if k.startswith("source_mask_")] == [
+        "source_mask_1",
+        "source_mask_2",
+        "source_mask_3",
+    ]
+    assert props["source_mask_2"]["format"] == "binary"
+    assert props["source_mask_2"]["description"].startswith("optional mask of sources[2]")
+    assert "never copied" in props["source_mask_2"]["description"]

@@ -122,6 +122,7 @@ def cmd_fill(args: argparse.Namespace) -> int:
         check_output_path,
         read_image,
         read_mask,
+        read_reference_mask,
         validate_pair,
         write_image_atomic,
     )
@@ -135,7 +136,7 @@ def cmd_fill(args: argparse.Namespace) -> int:
         raise ConfigError(f"{args.output}: --quality applies to JPEG and WebP output only")
     if args.debug_dir:
         check_output_dir(args.debug_dir)
-    source_paths = reference_paths(args.source or [], args.sources)
+    source_paths, mask_paths = reference_paths(args.source or [], args.sources, args.source_mask)
     target = read_image(args.target, max_pixels=cfg.max_pixels, min_side=cfg.min_side_px)
     sources = [read_image(p, max_pixels=cfg.max_pixels, min_side=cfg.min_side_px) for p in source_paths]
     mask = read_mask(args.mask, max_pixels=cfg.max_pixels)
@@ -150,6 +151,10 @@ def cmd_fill(args: argparse.Namespace) -> int:
             max_mask_fraction=cfg.max_mask_fraction,
             names=(args.target, args.mask, str(path)),
         )
+    source_masks = [
+        None if m is None else read_reference_mask(m, source.pixels, str(path), max_pixels=cfg.max_pixels)
+        for path, source, m in zip(source_paths, sources, mask_paths, strict=True)
+    ]
     # The depth file and the depth model belong to the (first) reference the depth stage runs on.
     check_resources(cfg, (sources[0].pixels.shape[1], sources[0].pixels.shape[0]))
     prog = Progress(quiet=args.quiet, time_budget_s=cfg.time_budget_s)
@@ -161,7 +166,10 @@ def cmd_fill(args: argparse.Namespace) -> int:
     metadata = None if args.strip_metadata else target.metadata
     if metadata is not None and metadata.note:
         prog.say(f"note: {args.target}: {metadata.note}")
-    result = fill_loaded(target, mask, sources, cfg, progress=prog)
+    for path, m, masked in zip(source_paths, mask_paths, source_masks, strict=True):
+        if masked is not None:
+            prog.say(f"{path}: {100 * masked.mean():.0f}% of it is never copied (masked by {m})")
+    result = fill_loaded(target, mask, sources, cfg, source_masks=source_masks, progress=prog)
     write_image_atomic(args.output, result.image, metadata=metadata, quality=args.quality)
     if args.debug_dir:
         write_debug(args.debug_dir, result, mask, cfg)
@@ -215,24 +223,53 @@ def cmd_batch(args: argparse.Namespace) -> int:
     return run_batch(items, cfg, settings).exit_code
 
 
-def reference_paths(files: list[str], folder: str | None) -> list[Path]:
-    """The reference photos: each ``--source`` file, then every image in ``--sources DIR`` (sorted
-    by name). None at all is an input error."""
+def reference_paths(
+    files: list[str], folder: str | None, file_masks: dict[int, str] | None = None
+) -> tuple[list[Path], list[Path | None]]:
+    """The reference photos and their masks: each ``--source`` file (with the ``--source-mask``
+    given after it, by index in ``file_masks``), then every image in ``--sources DIR`` (sorted by
+    name; ``<stem>.mask.png`` beside a reference is its mask, not a reference). None at all is an
+    input error."""
     from .errors import InputError
-    from .io import IMAGE_SUFFIXES
+    from .io import IMAGE_SUFFIXES, split_reference_masks
 
     paths = [Path(f) for f in files]
+    masks: list[Path | None] = [
+        Path(file_masks[i]) if i in (file_masks or {}) else None for i in range(len(paths))
+    ]
     if folder is not None:
         d = Path(folder)
         if not d.is_dir():
             raise InputError(f"--sources {folder}: not a folder")
         found = sorted(p for p in d.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
+        found, beside = split_reference_masks(found)
         if not found:
             raise InputError(f"--sources {folder}: no image files ({', '.join(sorted(IMAGE_SUFFIXES))})")
         paths += found
+        masks += [beside.get(p) for p in found]
     if not paths:
         raise InputError("no reference photo: give --source FILE (repeatable) or --sources DIR")
-    return paths
+    return paths, masks
+
+
+class _SourceMask(argparse.Action):
+    """``--source-mask FILE``: the mask of the ``--source`` given just before it."""
+
+    def __call__(self, parser, namespace, values, option_string=None) -> None:  # type: ignore[override]
+        sources = getattr(namespace, "source", None) or []
+        masks = dict(getattr(namespace, self.dest, None) or {})
+        if not sources:
+            raise argparse.ArgumentError(
+                self, f"{values}: no --source before it (give it right after the --source it masks)"
+            )
+        if len(sources) - 1 in masks:
+            raise argparse.ArgumentError(
+                self,
+                f"{values}: --source {sources[-1]} has a mask already ({masks[len(sources) - 1]}); "
+                "one --source-mask per --source, right after it",
+            )
+        masks[len(sources) - 1] = values
+        setattr(namespace, self.dest, masks)
 
 
 def cmd_config(args: argparse.Namespace) -> int:
@@ -267,7 +304,8 @@ def cmd_serve(args: argparse.Namespace) -> int:
         queue_size=args.queue,
         job_ttl_s=args.job_ttl,
         max_upload_bytes=int(args.max_upload_mb * 1024 * 1024),
-        max_request_bytes=int(args.max_upload_mb * 1024 * 1024) * (args.max_sources + 2),
+        # target, mask, and each reference with its mask
+        max_request_bytes=int(args.max_upload_mb * 1024 * 1024) * (2 * args.max_sources + 2),
         max_pixels=args.max_pixels,
         max_sources=args.max_sources,
     )
@@ -300,9 +338,24 @@ def build_parser() -> argparse.ArgumentParser:
         "--mask", required=True, help="hole mask, same size as target: pixel >= 127 (or alpha) = hole"
     )
     p.add_argument(
-        "--source", action="append", metavar="FILE", help="another photo of the same scene (repeatable)"
+        "--source",
+        action="append",
+        metavar="FILE",
+        help="another photo of the same scene (repeatable; a --source-mask right after it masks it)",
     )
-    p.add_argument("--sources", metavar="DIR", help="every image in DIR is a reference photo")
+    p.add_argument(
+        "--source-mask",
+        action=_SourceMask,
+        metavar="FILE",
+        help="mask of the --source given just before it: what must never be copied from that photo "
+        "(a passer-by, a parked car); same size as that photo, pixel >= 127 (or alpha) = masked",
+    )
+    p.add_argument(
+        "--sources",
+        metavar="DIR",
+        help="every image in DIR is a reference photo; DIR/<stem>.mask.png (any image format) is the mask "
+        "of DIR/<stem>.jpg, not a reference",
+    )
     p.add_argument("-o", "--output", required=True, help="output image (written atomically)")
     p.add_argument("--debug-dir", help="write matches, depth, warped source, coverage and report.json here")
     p.add_argument(
@@ -325,7 +378,10 @@ def build_parser() -> argparse.ArgumentParser:
         "batch",
         help="fill many images: folders matched by stem or a manifest; parallel, resumable, Ray",
         description="Fill every image of --images (its mask: same stem in --masks, or one mask file for "
-        "all) or every row of --manifest, writing OUT/{stem}.png and OUT/results.jsonl. Exit status: 0 when "
+        "all) or every row of --manifest, writing OUT/{stem}.png and OUT/results.jsonl. A reference's "
+        "mask (what must never be copied from it: a passer-by, a parked car) is <ref stem>.mask.png beside "
+        "it (any image format; never a target or reference itself), or the manifest's source_masks "
+        "column. Exit status: 0 when "
         f"every item was filled from a reference, {EXIT_FELL_BACK} when some fell back to single-image "
         f"inpainting (unless --allow-fallback), {EXIT_ITEMS_FAILED} when some failed, 130 on Ctrl-C.",
     )
@@ -335,11 +391,20 @@ def build_parser() -> argparse.ArgumentParser:
     )
     refs = p.add_mutually_exclusive_group()
     refs.add_argument(
-        "--sources", metavar="DIR", help="other photos of the shoot: the best --max-refs per target are used"
+        "--sources",
+        metavar="DIR",
+        help="other photos of the shoot: the best --max-refs per target are used; DIR/<stem>.mask.png "
+        "masks what must never be copied from DIR/<stem>.jpg",
     )
-    refs.add_argument("--sources-per-image", metavar="DIR", help="DIR/<stem>/ holds each image's references")
     refs.add_argument(
-        "--manifest", metavar="FILE", help="CSV or JSONL: target, mask, sources, optional output and set"
+        "--sources-per-image",
+        metavar="DIR",
+        help="DIR/<stem>/ holds each image's references (and their masks, <ref stem>.mask.png)",
+    )
+    refs.add_argument(
+        "--manifest",
+        metavar="FILE",
+        help="CSV or JSONL: target, mask, sources, optional source_masks, output and set",
     )
     p.add_argument("--out", required=True, metavar="DIR", help="output folder (created if missing)")
     p.add_argument(

@@ -1,8 +1,13 @@
 """What a batch is made of: one :class:`BatchItem` per target, found from folders (masks matched by
 file stem, or one mask for all) or read from a manifest (CSV or JSONL).
 
+Reference masks (what must never be copied from a reference: a passer-by, a parked car): in a
+folder of references, ``<stem>.mask.png`` (any image format) beside ``<stem>.jpg`` is its mask and
+never a reference or a target itself; a manifest names them in its ``source_masks`` column.
+
 Problems with the batch as a whole (a folder that does not exist, a manifest without the required
-columns) raise :class:`geofill.errors.InputError`; a problem with one item (no mask for its stem, a
+columns, a reference mask in ``--sources DIR`` with no reference of its stem) raise
+:class:`geofill.errors.InputError`; a problem with one item (no mask for its stem, a
 malformed manifest row, an output name already taken) becomes an item carrying ``error``, which the
 runner records as failed without stopping the others.
 """
@@ -18,12 +23,13 @@ from typing import Any
 
 from ..config import FillConfig, parse_overrides
 from ..errors import ConfigError, GeoFillError, InputError
+from ..io import is_reference_mask, split_reference_masks
 
 #: Files taken as images in folders (the formats :func:`geofill.io.read_image` decodes).
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".webp", ".tif", ".tiff")
 #: Output formats :func:`geofill.io.write_image_atomic` writes; a batch writes ``{stem}.png`` by default.
 OUTPUT_SUFFIXES = IMAGE_SUFFIXES
-MANIFEST_COLUMNS = ("target", "mask", "sources", "output", "set")
+MANIFEST_COLUMNS = ("target", "mask", "sources", "source_masks", "output", "set")
 _REQUIRED = ("target", "mask", "sources")
 #: Separates several sources (and several ``key=value`` overrides) inside one CSV cell.
 CSV_LIST_SEPARATOR = ";"
@@ -34,7 +40,8 @@ class BatchItem:
     """One fill of a batch. Paths are as given (relative to the working folder or the manifest).
 
     ``sources`` are the references to use as they are; ``candidates`` (``--sources DIR``) are
-    references to choose from by measured overlap, at most ``max_refs`` of them. ``where`` says
+    references to choose from by measured overlap, at most ``max_refs`` of them;
+    ``reference_masks`` maps a reference (or candidate) path to its mask's path. ``where`` says
     where the item came from in messages (``images/a.jpg``, ``manifest.csv:7``). An item with an
     ``error`` is not run: it is recorded as failed with that reason."""
 
@@ -45,13 +52,14 @@ class BatchItem:
     sources: tuple[str, ...] = ()
     candidates: tuple[str, ...] = ()
     max_refs: int = 1
+    reference_masks: Mapping[str, str] = field(default_factory=dict)
     overrides: Mapping[str, Any] = field(default_factory=dict)
     where: str = ""
     error: str = ""
 
 
 def image_files(folder: Path) -> list[Path]:
-    """The image files directly inside ``folder``, sorted by name."""
+    """The image files directly inside ``folder``, sorted by name (reference masks included)."""
     if not folder.is_dir():
         raise InputError(f"{folder}: not a folder")
     return sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
@@ -75,18 +83,20 @@ def items_from_folders(
     """One item per image in ``images``. ``masks`` is a folder (the mask with the image's stem) or
     one mask file for every image. References: ``sources`` (every image of that folder but the
     target itself is a candidate; the best ``max_refs`` are picked per target) or
-    ``sources_per_image`` (``DIR/<stem>/`` holds the image's references, all used, in name order)."""
+    ``sources_per_image`` (``DIR/<stem>/`` holds the image's references, all used, in name order).
+    A reference's mask is ``<stem>.mask.png`` beside it; such files are neither targets nor
+    references."""
     if (sources is None) == (sources_per_image is None):
         raise InputError("give the references with exactly one of --sources, --sources-per-image, --manifest")
     if max_refs < 1:
         raise ConfigError(f"--max-refs must be at least 1, got {max_refs}")
-    targets = image_files(images)
+    targets = [p for p in image_files(images) if not is_reference_mask(p)]
     if not targets:
         raise InputError(f"{images}: holds no image ({', '.join(IMAGE_SUFFIXES)})")
     if not masks.exists():
         raise InputError(f"{masks}: no such mask folder or file")
     mask_by_stem = _by_stem(image_files(masks)) if masks.is_dir() else None
-    pool = image_files(sources) if sources is not None else []
+    pool, pool_masks = split_reference_masks(image_files(sources)) if sources is not None else ([], {})
     items = []
     for target in targets:
         item = BatchItem(
@@ -110,14 +120,23 @@ def items_from_folders(
                 )
         if sources is not None:
             # The target itself is not its own reference (--sources may be the --images folder).
-            others = tuple(str(p) for p in pool if p.resolve() != target.resolve())
-            item = replace(item, candidates=others)
+            others = [p for p in pool if p.resolve() != target.resolve()]
+            item = replace(
+                item,
+                candidates=tuple(str(p) for p in others),
+                reference_masks={str(p): str(pool_masks[p]) for p in others if p in pool_masks},
+            )
             if not others and not item.error:
                 item = replace(item, error=f"{target}: {sources} holds no other image to use as a reference")
         else:
             folder = sources_per_image / target.stem
-            refs = tuple(str(p) for p in image_files(folder)) if folder.is_dir() else ()
-            item = replace(item, sources=refs)
+            try:
+                found, beside = split_reference_masks(image_files(folder)) if folder.is_dir() else ([], {})
+            except InputError as exc:
+                found, beside = [], {}
+                item = replace(item, error=item.error or f"{target}: {exc}")
+            refs = tuple(str(p) for p in found)
+            item = replace(item, sources=refs, reference_masks={str(p): str(m) for p, m in beside.items()})
             if not refs and not item.error:
                 item = replace(item, error=f"{target}: no reference images in {folder}")
         items.append(item)
@@ -127,11 +146,13 @@ def items_from_folders(
 def read_manifest(path: Path, base_config: FillConfig) -> list[BatchItem]:
     """Items of a manifest: CSV with a header row, or JSONL (one JSON object per line; by suffix
     ``.jsonl``/``.json``). Fields: ``target``, ``mask``, ``sources`` (one or more; in CSV separated
-    by ``;``), optional ``output`` (file name in the output folder, default ``{target stem}.png``)
-    and ``set`` (config overrides: in CSV ``key=value`` separated by ``;``, in JSONL an object).
-    Relative paths are relative to the manifest's folder. A malformed row becomes an item whose
-    error names ``FILE:LINE``; overrides are checked against ``base_config`` here, so a bad key is
-    reported with its line too."""
+    by ``;``), optional ``source_masks`` (each source's mask, in the order of ``sources``, empty
+    (JSONL: null or "") for a source without one; in CSV separated by ``;``; fewer than the
+    sources leave the last ones unmasked), optional ``output`` (file name in the output folder,
+    default ``{target stem}.png``) and ``set`` (config overrides: in CSV ``key=value`` separated
+    by ``;``, in JSONL an object). Relative paths are relative to the manifest's folder. A
+    malformed row becomes an item whose error names ``FILE:LINE``; overrides are checked against
+    ``base_config`` here, so a bad key is reported with its line too."""
     if not path.is_file():
         raise InputError(f"{path}: manifest not found")
     try:
@@ -176,6 +197,10 @@ def _csv_rows(path: Path, text: str) -> list[tuple[int, dict[str, Any]]]:
         if not any(cells.values()):
             continue
         cells["sources"] = [s.strip() for s in cells["sources"].split(CSV_LIST_SEPARATOR) if s.strip()]
+        # Kept in place, empty ones included: the n-th mask is the n-th source's.
+        masks = cells.pop("source_masks", "")
+        if masks:
+            cells["source_masks"] = [m.strip() for m in masks.split(CSV_LIST_SEPARATOR)]
         overrides = [s.strip() for s in cells.pop("set", "").split(CSV_LIST_SEPARATOR) if s.strip()]
         try:
             cells["set"] = parse_overrides(overrides)
@@ -218,6 +243,16 @@ def _manifest_item(base: Path, where: str, row: dict[str, Any], base_config: Fil
     sources = row.get("sources")
     if not isinstance(sources, list) or not sources or not all(isinstance(s, str) and s for s in sources):
         raise InputError(f"{where}: 'sources' must name one or more reference images")
+    masks = row.get("source_masks") or []
+    if isinstance(masks, str):
+        masks = [masks]
+    if not isinstance(masks, list) or not all(m is None or isinstance(m, str) for m in masks):
+        raise InputError(f"{where}: 'source_masks' must list a mask file (or nothing) per source")
+    if len(masks) > len(sources):
+        raise InputError(
+            f"{where}: {len(masks)} source masks for {len(sources)} sources "
+            "(one per source, in their order; empty for none)"
+        )
     overrides = row.get("set") or {}
     if not isinstance(overrides, dict):
         raise InputError(f"{where}: 'set' must be an object of config overrides")
@@ -226,6 +261,7 @@ def _manifest_item(base: Path, where: str, row: dict[str, Any], base_config: Fil
     except ConfigError as exc:
         raise ConfigError(f"{where}: {exc}") from exc
     target = _resolve(base, row["target"])
+    source_paths = [str(_resolve(base, s)) for s in sources]
     output = row.get("output") or f"{target.stem}.png"
     if (
         not isinstance(output, str)
@@ -240,8 +276,11 @@ def _manifest_item(base: Path, where: str, row: dict[str, Any], base_config: Fil
         target=str(target),
         mask=str(_resolve(base, row["mask"])),
         output=output,
-        sources=tuple(str(_resolve(base, s)) for s in sources),
+        sources=tuple(source_paths),
         max_refs=len(sources),
+        reference_masks={
+            s: str(_resolve(base, m)) for s, m in zip(source_paths, masks, strict=False) if m and m.strip()
+        },
         overrides=dict(overrides),
         where=where,
     )

@@ -12,8 +12,8 @@ import resource
 import signal
 import time
 import traceback
-from collections.abc import Sequence
-from dataclasses import dataclass
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -23,7 +23,7 @@ from ..composite.inpaint import get_inpainter
 from ..composite.merge import merge_fill
 from ..config import FillConfig
 from ..errors import GeoFillError, InputError
-from ..io import LoadedImage, read_image, read_mask, validate_pair, write_image_atomic
+from ..io import LoadedImage, read_image, read_mask, read_reference_mask, validate_pair, write_image_atomic
 from ..pipeline import fill_loaded
 from ..progress import Progress
 from .items import BatchItem
@@ -53,19 +53,40 @@ class Filled:
     references: tuple[str, ...]  # paths of the references the fill was given
     coverage: float  # fraction of the hole supplied by the references
     notices: tuple[str, ...]
+    reference_masks: tuple[str | None, ...] = ()  # per reference, its mask's path or None
+    refused: dict[str, float] = field(default_factory=dict)  # FillReport.refused_fraction
 
 
 def fill_from_references(
-    target: LoadedImage, hole: np.ndarray, references: Sequence[LoadedImage], cfg: FillConfig, prog: Progress
+    target: LoadedImage,
+    hole: np.ndarray,
+    references: Sequence[LoadedImage],
+    cfg: FillConfig,
+    prog: Progress,
+    masks: Mapping[str, tuple[str, np.ndarray]] | None = None,
 ) -> Filled:
     """The one place a batch fills (:func:`geofill.pipeline.fill_loaded`, every reference of the item) and
-    reads the hole coverage."""
+    reads the hole coverage. ``masks``: reference path -> (mask path, HxW bool mask), what must never
+    be copied from that reference."""
     # A batch already runs one fill per core: references one after the other inside each.
     cfg = cfg.updated({"fusion.parallel": 1})
-    result = fill_loaded(target, hole, references, cfg, progress=prog)
+    masks = masks or {}
+    used = [masks.get(ref.path) for ref in references]
+    result = fill_loaded(
+        target, hole, references, cfg, source_masks=[None if m is None else m[1] for m in used], progress=prog
+    )
     r = result.report
     paths = tuple(ref.path for ref in references)
-    return Filled(result.image, r.status, tuple(r.fallbacks), paths, 1.0 - float(r.painted_fraction), ())
+    return Filled(
+        result.image,
+        r.status,
+        tuple(r.fallbacks),
+        paths,
+        1.0 - float(r.painted_fraction),
+        (),
+        tuple(None if m is None else m[0] for m in used),
+        {k: round(v, 4) for k, v in r.refused_fraction.items()},
+    )
 
 
 def _single_image(target: LoadedImage, hole: np.ndarray, cfg: FillConfig, prog: Progress) -> np.ndarray:
@@ -111,8 +132,10 @@ def run_item(item: BatchItem, cfg: FillConfig, out_dir: str) -> dict[str, Any]:
         "output": str(Path(out_dir) / item.output) if item.output else "",
         "status": STATUS_FAILED,
         "references": [],
+        "reference_masks": [],
         "fallback_reason": None,
         "coverage": None,
+        "refused_fraction": None,
         "error": item.error or None,
     }
     if item.candidates:
@@ -159,6 +182,18 @@ def _fill_item(item: BatchItem, cfg: FillConfig, record: dict[str, Any], prog: P
                 )
         else:
             pool = [read_image(path, **limits) for path in item.sources]
+        # A reference mask that cannot be read or is not its reference's size fails the item: the
+        # user asked that something never be copied, and nothing is filled without knowing what.
+        masks = {
+            ref.path: (
+                item.reference_masks[ref.path],
+                read_reference_mask(
+                    item.reference_masks[ref.path], ref.pixels, ref.path, max_pixels=cfg.max_pixels
+                ),
+            )
+            for ref in pool
+            if ref.path in item.reference_masks
+        }
         hole = validate_pair(
             target.pixels,
             mask,
@@ -172,12 +207,12 @@ def _fill_item(item: BatchItem, cfg: FillConfig, record: dict[str, Any], prog: P
         from .references import pick_references
 
         with prog.stage("select references"):
-            references, scores = pick_references(target.pixels, hole, pool, cfg, item.max_refs)
+            references, scores = pick_references(target.pixels, hole, pool, cfg, item.max_refs, masks)
         record["candidates"] = [s.to_dict() for s in scores]
     else:
         references = pool
     if references:
-        filled = fill_from_references(target, hole, references, cfg, prog)
+        filled = fill_from_references(target, hole, references, cfg, prog, masks)
         image, status, fallbacks, coverage = (
             filled.image,
             filled.status,
@@ -185,6 +220,8 @@ def _fill_item(item: BatchItem, cfg: FillConfig, record: dict[str, Any], prog: P
             filled.coverage,
         )
         record["references"] = list(filled.references)
+        record["reference_masks"] = list(filled.reference_masks)
+        record["refused_fraction"] = filled.refused
         notices.extend(filled.notices)
     else:
         image = _single_image(target, hole, cfg, prog)

@@ -9,6 +9,8 @@ with the file (or array) it is about.
 - :mod:`~geofill.io.arrays`: arrays at the API edge and the checks of one fill's inputs.
 - :mod:`~geofill.io.output`: output checks made before any work, and the atomic image write.
 - :mod:`~geofill.io.depth_files`: user-supplied depth maps.
+- :mod:`~geofill.io.reference_masks`: what must not be copied from each reference (its mask file,
+  ``<stem>.mask.png`` beside it in a folder).
 """
 
 from .arrays import MASK_THRESHOLD, as_rgb_uint8, as_source_mask, as_unit_float, validate_pair
@@ -23,6 +25,7 @@ from .images import (
     read_mask,
 )
 from .output import check_output_dir, check_output_path, write_image_atomic
+from .reference_masks import is_reference_mask, read_reference_mask, split_reference_masks
 
 __all__ = [
     "IMAGE_SUFFIXES",
@@ -36,9 +39,12 @@ __all__ = [
     "as_unit_float",
     "check_output_dir",
     "check_output_path",
+    "is_reference_mask",
     "read_depth_file",
     "read_image",
     "read_mask",
+    "read_reference_mask",
+    "split_reference_masks",
     "validate_pair",
     "write_image_atomic",
 ]

@@ -26,8 +26,8 @@ from ..config import FillConfig
 from ..errors import ConfigError, GeoFillError, ImageTooLargeError
 from .jobs import JobManager, QueueFullError, ServerSettings
 from .schema import LOCKED_KEYS, apply_request_config, config_fields, with_config_schema
-from .uploads import UploadError, receive_fill_form
-from .worker import COVERAGE_FILE, RESULT_FILE, STAGES
+from .uploads import SOURCE_MASK_FIELD, UploadError, receive_fill_form
+from .worker import COVERAGE_FILE, RESULT_FILE, STAGES, source_file, source_mask_file
 
 STATIC = Path(__file__).parent / "static"
 #: Job ids are ``secrets.token_urlsafe(24)``: anything else is unknown without a lookup.
@@ -37,41 +37,49 @@ RETRY_AFTER_S = 20
 #: The page loads nothing from elsewhere; blob: and data: are its own canvases and downloads.
 PAGE_CSP = "default-src 'self'; img-src 'self' blob: data:; style-src 'self'; script-src 'self'"
 
-_FILL_FORM = {
-    "requestBody": {
-        "required": True,
-        "content": {
-            "multipart/form-data": {
-                "schema": {
-                    "type": "object",
-                    "required": ["target", "mask", "sources"],
-                    "properties": {
-                        "target": {
-                            "type": "string",
-                            "format": "binary",
-                            "description": "photo with the hole",
-                        },
-                        "mask": {
-                            "type": "string",
-                            "format": "binary",
-                            "description": "hole mask, target's size: pixel >= 127 (or alpha) is hole",
-                        },
-                        "sources": {
-                            "type": "array",
-                            "items": {"type": "string", "format": "binary"},
-                            "description": "reference photos of the same scene (repeat the field)",
-                        },
-                        "config": {
-                            "type": "string",
-                            "description": "JSON object of FillConfig overrides, nested or dotted "
-                            '(e.g. {"depth": {"backend": "stereo"}}); see GET /api/v1/config',
-                        },
-                    },
-                }
-            }
-        },
-    }
+
+#: The fields of ``POST /api/v1/fill``'s form, as OpenAPI describes them (see :func:`_fill_form`).
+_FILL_FIELDS: dict[str, Any] = {
+    "target": {"type": "string", "format": "binary", "description": "photo with the hole"},
+    "mask": {
+        "type": "string",
+        "format": "binary",
+        "description": "hole mask, target's size: pixel >= 127 (or alpha) is hole",
+    },
+    "sources": {
+        "type": "array",
+        "items": {"type": "string", "format": "binary"},
+        "description": "reference photos of the same scene (repeat the field); "
+        "sources[k] is the k-th one (from 1)",
+    },
 }
+_CONFIG_FIELD: dict[str, Any] = {
+    "config": {
+        "type": "string",
+        "description": "JSON object of FillConfig overrides, nested or dotted "
+        '(e.g. {"depth": {"backend": "stereo"}}); see GET /api/v1/config',
+    },
+}
+
+
+def _fill_form(max_sources: int) -> dict[str, Any]:
+    """The OpenAPI description of ``POST /api/v1/fill``'s form: one optional ``source_mask_k`` per
+    reference this server takes."""
+    masks = {
+        SOURCE_MASK_FIELD.format(k): {
+            "type": "string",
+            "format": "binary",
+            "description": f"optional mask of sources[{k}], that photo's size: pixel >= 127 (or alpha) "
+            "is never copied into the hole (a passer-by, a parked car)",
+        }
+        for k in range(1, max_sources + 1)
+    }
+    schema = {
+        "type": "object",
+        "required": ["target", "mask", "sources"],
+        "properties": {**_FILL_FIELDS, **masks, **_CONFIG_FIELD},
+    }
+    return {"requestBody": {"required": True, "content": {"multipart/form-data": {"schema": schema}}}}
 
 
 def _error(status: int, message: str, headers: dict[str, str] | None = None) -> JSONResponse:
@@ -84,12 +92,13 @@ def _job_id_ok(job_id: str) -> bool:
 
 def _validate_inputs(folder: Path, files: dict[str, Path], cfg: FillConfig, max_pixels: int) -> None:
     """Decode every upload and check the set as the CLI does; GeoFillError names the form field."""
-    from ..io import read_image, read_mask, validate_pair
+    from ..io import read_image, read_mask, read_reference_mask, validate_pair
 
     target = read_image(files["target"], max_pixels=max_pixels, min_side=cfg.min_side_px).pixels
     mask = read_mask(files["mask"], max_pixels=max_pixels)
-    for role in sorted(r for r in files if r.startswith("source-")):
-        source = read_image(files[role], max_pixels=max_pixels, min_side=cfg.min_side_px).pixels
+    k = 1
+    while source_file(k) in files:
+        source = read_image(files[source_file(k)], max_pixels=max_pixels, min_side=cfg.min_side_px).pixels
         validate_pair(
             target,
             mask,
@@ -97,14 +106,18 @@ def _validate_inputs(folder: Path, files: dict[str, Path], cfg: FillConfig, max_
             min_side=cfg.min_side_px,
             max_pixels=max_pixels,
             max_mask_fraction=cfg.max_mask_fraction,
-            names=("target", "mask", f"sources[{role.removeprefix('source-')}]"),
+            names=("target", "mask", f"sources[{k}]"),
         )
+        if source_mask_file(k) in files:
+            read_reference_mask(files[source_mask_file(k)], source, f"sources[{k}]", max_pixels=max_pixels)
+        k += 1
 
 
 def _field_names(message: str, folder: Path) -> str:
     """A message about a file in ``folder`` with the file named by its form field."""
     for k in range(64, 0, -1):
-        message = message.replace(str(folder / f"source-{k}"), f"sources[{k}]")
+        message = message.replace(str(folder / source_mask_file(k)), SOURCE_MASK_FIELD.format(k))
+        message = message.replace(str(folder / source_file(k)), f"sources[{k}]")
     return message.replace(str(folder / "target"), "target").replace(str(folder / "mask"), "mask")
 
 
@@ -201,7 +214,7 @@ def create_app(
     @app.post(
         "/api/v1/fill",
         status_code=202,
-        openapi_extra=_FILL_FORM,
+        openapi_extra=_fill_form(settings.max_sources),
         summary="Start a fill",
         responses={
             202: {"description": "queued; poll the job"},
@@ -212,8 +225,9 @@ def create_app(
         },
     )
     async def post_fill(request: Request) -> JSONResponse:
-        """Upload ``target``, ``mask``, one or more ``sources`` and an optional ``config`` JSON; the
-        fill runs in the background. Poll ``GET /api/v1/jobs/{id}``."""
+        """Upload ``target``, ``mask``, one or more ``sources``, an optional mask per source
+        (``source_mask_k`` for the k-th ``sources`` file: what must never be copied from it) and an
+        optional ``config`` JSON; the fill runs in the background. Poll ``GET /api/v1/jobs/{id}``."""
         jobs = manager()
         busy = {"Retry-After": str(RETRY_AFTER_S)}
         if not jobs.has_room():
@@ -237,7 +251,7 @@ def create_app(
                 raise UploadError(422, f"config: not valid JSON ({exc})") from exc
             cfg = apply_request_config(base, overrides)
             await run_in_threadpool(_validate_inputs, folder, form.files, cfg, settings.max_pixels)
-            job = jobs.submit(folder, form.n_sources, cfg.to_dict())
+            job = jobs.submit(folder, form.n_sources, cfg.to_dict(), tuple(sorted(form.source_masks)))
         except UploadError as exc:
             shutil.rmtree(folder, ignore_errors=True)
             return _error(exc.status, str(exc))

@@ -179,15 +179,19 @@ class JobManager:
         with self._cv:
             return len(self._queue) < self.settings.queue_size
 
-    def submit(self, folder: Path, n_sources: int, config: dict[str, Any]) -> Job:
-        """Queue a job whose inputs are in ``folder`` (moved into the job's own folder)."""
+    def submit(
+        self, folder: Path, n_sources: int, config: dict[str, Any], source_masks: tuple[int, ...] = ()
+    ) -> Job:
+        """Queue a job whose inputs are in ``folder`` (moved into the job's own folder);
+        ``source_masks``: the references (1-based) whose mask was uploaded."""
         with self._cv:
             if len(self._queue) >= self.settings.queue_size or self._stopping:
                 raise QueueFullError(f"{len(self._queue)} jobs are waiting already")
             job_id = secrets.token_urlsafe(24)  # 192 random bits: not guessable
             job_folder = self.root / job_id
             folder.rename(job_folder)
-            job = Job(job_id, job_folder, JobSpec(str(job_folder), n_sources, config), self.clock())
+            spec = JobSpec(str(job_folder), n_sources, config, source_masks)
+            job = Job(job_id, job_folder, spec, self.clock())
             self._jobs[job_id] = job
             self._queue.append(job)
             self._cv.notify_all()

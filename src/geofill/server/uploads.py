@@ -7,6 +7,7 @@ server-chosen name in the job's folder and the limits are checked while the byte
 
 from __future__ import annotations
 
+import re
 from collections.abc import AsyncIterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -14,10 +15,13 @@ from typing import IO
 
 from python_multipart.multipart import MultipartParser, parse_options_header
 
-from .worker import MASK_FILE, TARGET_FILE, source_file
+from .worker import MASK_FILE, TARGET_FILE, source_file, source_mask_file
 
 #: Largest text field (the config JSON), bytes.
 MAX_FIELD_BYTES = 64 * 1024
+#: The form field of reference ``k``'s mask (1-based, the order of the ``sources`` fields).
+SOURCE_MASK_FIELD = "source_mask_{}"
+_SOURCE_MASK = re.compile(r"source_mask_([1-9][0-9]{0,2})")
 
 
 class UploadError(Exception):
@@ -32,8 +36,9 @@ class UploadError(Exception):
 class ParsedUpload:
     """Where each part of the form went: files by role, the config text."""
 
-    files: dict[str, Path] = field(default_factory=dict)  # "target", "mask", "source-1", ...
+    files: dict[str, Path] = field(default_factory=dict)  # "target", "mask", "source-1", "source-mask-1", ...
     n_sources: int = 0
+    source_masks: set[int] = field(default_factory=set)  # k of each source_mask_k received
     config_text: str | None = None
 
 
@@ -77,13 +82,22 @@ async def receive_fill_form(
             if out.config_text is not None:
                 raise UploadError(400, "the form field 'config' is given twice")
             return
-        if name not in ("target", "mask", "sources"):
+        masked = _SOURCE_MASK.fullmatch(name)
+        if name not in ("target", "mask", "sources") and not (masked and int(masked[1]) <= max_sources):
             raise UploadError(
-                400, f"unknown form field '{name[:40]}' (expected target, mask, sources, config)"
+                400,
+                f"unknown form field '{name[:40]}' (expected target, mask, sources, "
+                f"source_mask_1 ... source_mask_{max_sources}, config)",
             )
         if not is_file:
             raise UploadError(400, f"the form field '{name}' must be a file")
-        if name == "sources":
+        if masked:
+            k = int(masked[1])
+            if k in out.source_masks:
+                raise UploadError(400, f"the form field '{name}' is given twice")
+            out.source_masks.add(k)
+            role = source_mask_file(k)
+        elif name == "sources":
             if out.n_sources >= max_sources:
                 raise UploadError(413, f"too many references: at most {max_sources} (max_sources)")
             out.n_sources += 1
@@ -149,4 +163,11 @@ async def receive_fill_form(
             raise UploadError(400, f"the form field '{name}' (a file) is missing")
     if out.n_sources == 0:
         raise UploadError(400, "at least one reference photo is needed (form field 'sources')")
+    for k in sorted(out.source_masks):
+        if k > out.n_sources:
+            raise UploadError(
+                400,
+                f"{SOURCE_MASK_FIELD.format(k)}: a mask for sources[{k}], but {out.n_sources} reference "
+                f"photo(s) given",
+            )
     return out

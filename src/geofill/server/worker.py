@@ -58,6 +58,11 @@ def source_file(k: int) -> str:
     return f"source-{k}"
 
 
+def source_mask_file(k: int) -> str:
+    """File name of reference ``k``'s mask (what must never be copied from it) in a job folder."""
+    return f"source-mask-{k}"
+
+
 @dataclass(frozen=True)
 class JobSpec:
     """What a worker needs for one fill (sent to the process, so plain values only)."""
@@ -65,6 +70,7 @@ class JobSpec:
     folder: str
     n_sources: int
     config: dict[str, Any]  # FillConfig.to_dict()
+    source_masks: tuple[int, ...] = ()  # the references (1-based) that come with a mask
 
 
 @dataclass(frozen=True)
@@ -99,12 +105,17 @@ class StageProgress(Progress):
 
 
 def run_fill(
-    target: LoadedImage, hole: np.ndarray, sources: Sequence[LoadedImage], config, progress: Progress
+    target: LoadedImage,
+    hole: np.ndarray,
+    sources: Sequence[LoadedImage],
+    config,
+    progress: Progress,
+    source_masks: Sequence[np.ndarray | None] | None = None,
 ) -> FillOutcome:
     """The server's one fill (:func:`geofill.pipeline.fill_loaded`), and its one read of the coverage."""
     from ..pipeline import fill_loaded
 
-    result = fill_loaded(target, hole, sources, config, progress=progress)
+    result = fill_loaded(target, hole, sources, config, source_masks=source_masks, progress=progress)
     r = result.report
     return FillOutcome(
         result.image, result.source_map, r.to_dict(), r.status, tuple(r.fallbacks), (), r.refused_words()
@@ -157,7 +168,7 @@ def execute(spec: JobSpec, send: Callable[[tuple], None]) -> dict[str, Any]:
     from PIL import Image
 
     from ..config import FillConfig
-    from ..io import read_image, read_mask, write_image_atomic
+    from ..io import read_image, read_mask, read_reference_mask, write_image_atomic
 
     folder = Path(spec.folder)
     cfg = FillConfig.from_dict(spec.config)
@@ -169,7 +180,15 @@ def execute(spec: JobSpec, send: Callable[[tuple], None]) -> dict[str, Any]:
             read_image(folder / source_file(k), max_pixels=cfg.max_pixels, min_side=cfg.min_side_px)
             for k in range(1, spec.n_sources + 1)
         ]
-    outcome = run_fill(target, hole, sources, cfg, prog)
+        masks = [
+            read_reference_mask(
+                folder / source_mask_file(k), s.pixels, f"sources[{k}]", max_pixels=cfg.max_pixels
+            )
+            if k in spec.source_masks
+            else None
+            for k, s in enumerate(sources, 1)
+        ]
+    outcome = run_fill(target, hole, sources, cfg, prog, masks)
     with prog.stage("write result"):
         write_image_atomic(folder / RESULT_FILE, outcome.image)
         # RGBA, which write_image_atomic (RGB outputs) does not write; the job is not done before
@@ -181,6 +200,7 @@ def execute(spec: JobSpec, send: Callable[[tuple], None]) -> dict[str, Any]:
         "fallbacks": list(outcome.fallbacks),
         "notices": list(outcome.notices),
         "coverage": rows,
+        "source_masks": list(spec.source_masks),
         "summary": "; ".join(filter(None, (plain_summary(rows), outcome.refused))),
         "report": outcome.report,
         "timings_s": dict(prog.timings),

@@ -1,33 +1,49 @@
 // geofill page: plain JavaScript (no build step, no library), talking only to /api/v1.
-// The hole is kept as a full-resolution mask canvas rebuilt from an operation list (strokes, clear,
-// uploaded mask), which is what makes undo/redo cheap; the photo is shown scaled and panned.
+// The editor shows one photo at a time: the target, whose mask is the hole, or a reference, whose
+// mask is what must never be copied from it. Each photo's mask is a full-resolution canvas rebuilt
+// from its own operation list (strokes, clear, uploaded mask), which is what makes undo/redo cheap;
+// the photo is shown scaled and panned.
 "use strict";
 
 const $ = (id) => document.getElementById(id);
-const HOLE_RGB = "rgb(255, 0, 160)";
+const HOLE_RGB = "rgb(255, 0, 160)"; // the target's hole
+// A reference's mask: never copied into the hole. Sent as the mask canvas's PNG, read by its alpha;
+// a reference masked all over has a uniform alpha and is read by luminance, which is 141 >= 127 here.
+const KEEP_OUT_RGB = "rgb(0, 190, 255)";
 const MASK_OPACITY = 0.45;
 const POLL_MS = 300;
+const THUMB_SIDE = 184; // px: long side of a reference's mask thumbnail
 
 const state = {
-  target: null, // {blob, name, bitmap}
-  refs: [], // {file, url}
-  ops: [], // undo stack: {type: "stroke", erase, size, points} | {type: "clear"} | {type: "mask", canvas}
-  redo: [],
+  target: null, // {blob, name, layer}
+  refs: [], // {file, url, layer, thumb}
+  doc: null, // the layer open in the editor: the target's or a reference's
+  refsVersion: 0, // counts changes to the references and their masks (a new fill is worth it)
   stroke: null,
   tool: "brush",
   spaceDown: false,
   pan: null, // {x, y, ox, oy} while dragging the view
   view: { scale: 1, ox: 0, oy: 0 },
   pointer: null, // last pointer position in canvas px
-  job: null, // {id, timer}
-  result: null, // {bitmap, coverage, data}
+  job: null, // {id, timer, refsVersion}
+  result: null, // {bitmap, coverage, data, refsVersion}
   fields: [],
 };
 
 const view = $("view");
 const ctx = view.getContext("2d");
-const mask = document.createElement("canvas");
-const mctx = mask.getContext("2d");
+
+// A photo with its mask: ops is the undo stack ({type: "stroke", erase, size, points} |
+// {type: "clear"} | {type: "mask", canvas}), view its zoom and pan when another photo is open.
+function newLayer(bitmap, colour) {
+  const mask = document.createElement("canvas");
+  mask.width = bitmap.width;
+  mask.height = bitmap.height;
+  return { bitmap, colour, mask, mctx: mask.getContext("2d"), ops: [], redo: [], view: null };
+}
+
+const isTarget = (layer) => Boolean(state.target) && layer === state.target.layer;
+const refOf = (layer) => state.refs.findIndex((r) => r.layer === layer);
 
 // ---------------------------------------------------------------- messages
 
@@ -56,68 +72,120 @@ async function decode(blob) {
 
 async function setTarget(blob, name) {
   const bitmap = await decode(blob);
-  state.target = { blob, name, bitmap };
-  mask.width = bitmap.width;
-  mask.height = bitmap.height;
-  state.ops = [];
-  state.redo = [];
+  state.target = { blob, name, layer: newLayer(bitmap, HOLE_RGB) };
   state.result = null;
   $("drop-target").hidden = true;
   view.hidden = false;
-  $("compare").hidden = true;
   $("result").hidden = true;
-  resize();
-  fit();
+  openLayer(state.target.layer);
+}
+
+// Show ``layer`` (the target's or a reference's) in the editor, zoomed and panned as the user left it.
+function openLayer(layer) {
+  const i = refOf(layer);
+  $("editing").hidden = i < 0;
+  if (i >= 0) {
+    $("editing-text").textContent = `Reference ${i + 1} (${state.refs[i].file.name}): brush what must never be copied from it, such as a passer-by or a parked car.`;
+  }
+  $("tools-title").textContent = i < 0 ? "1. Mark the hole" : `Mark what not to copy from reference ${i + 1}`;
+  $("compare").hidden = i >= 0 || !state.result;
+  resize(); // the bars above the photo may have come or gone
+  if (layer !== state.doc) {
+    if (state.doc) state.doc.view = { ...state.view };
+    state.doc = layer;
+    state.stroke = null;
+    if (layer.view) state.view = { ...layer.view };
+    else fit();
+  }
   rebuildMask();
+  renderRefs();
   update();
 }
 
 async function addRefs(files) {
   for (const file of files) {
+    let bitmap;
     try {
-      await decode(file); // refuse now what the browser cannot show as a thumbnail
+      bitmap = await decode(file); // refuse now what the browser cannot show as a thumbnail
     } catch (e) {
       say(e.message);
       continue;
     }
-    state.refs.push({ file, url: URL.createObjectURL(file) });
+    const thumb = document.createElement("canvas");
+    const s = Math.min(1, THUMB_SIDE / Math.max(bitmap.width, bitmap.height));
+    thumb.width = Math.max(1, Math.round(bitmap.width * s));
+    thumb.height = Math.max(1, Math.round(bitmap.height * s));
+    state.refs.push({ file, url: URL.createObjectURL(file), layer: newLayer(bitmap, KEEP_OUT_RGB), thumb });
+    state.refsVersion++;
   }
   renderRefs();
   update();
+}
+
+function removeRef(i) {
+  const [ref] = state.refs.splice(i, 1);
+  URL.revokeObjectURL(ref.url);
+  state.refsVersion++;
+  if (state.target) openLayer(state.doc === ref.layer ? state.target.layer : state.doc); // renumbered
+  else {
+    renderRefs();
+    update();
+  }
 }
 
 function renderRefs() {
   const list = $("ref-list");
   list.replaceChildren();
   state.refs.forEach((ref, i) => {
+    const masked = !maskIsEmpty(ref.layer);
+    const editing = state.doc === ref.layer;
     const li = document.createElement("li");
+    li.classList.toggle("masked", masked);
+    const opener = document.createElement("button");
+    opener.type = "button";
+    opener.className = "thumb";
+    opener.setAttribute("aria-pressed", String(editing));
+    opener.title = editing
+      ? `Reference ${i + 1} is open: brush what must not be copied from it`
+      : `Open reference ${i + 1} to mark what must not be copied from it`;
+    opener.addEventListener("click", () => {
+      if (!state.target) return say("Open the photo first; then a reference opens here to mark what not to copy.");
+      openLayer(editing ? state.target.layer : ref.layer);
+    });
     const img = document.createElement("img");
     img.src = ref.url;
     img.alt = `reference ${i + 1}: ${ref.file.name}`;
+    drawThumb(ref);
+    opener.append(img, ref.thumb);
     const label = document.createElement("span");
-    label.textContent = `reference ${i + 1}`;
+    label.textContent = masked ? `reference ${i + 1} · masked` : `reference ${i + 1}`;
     const remove = document.createElement("button");
     remove.type = "button";
+    remove.className = "remove";
     remove.textContent = "×";
     remove.title = `Remove reference ${i + 1}`;
     remove.setAttribute("aria-label", `Remove reference ${i + 1}`);
-    remove.addEventListener("click", () => {
-      URL.revokeObjectURL(ref.url);
-      state.refs.splice(i, 1);
-      renderRefs();
-      update();
-    });
-    li.append(img, label, remove);
+    remove.addEventListener("click", () => removeRef(i));
+    li.append(opener, label, remove);
     list.append(li);
   });
+  $("refs-hint").hidden = !state.refs.length;
+}
+
+// The reference's mask, small, over its thumbnail.
+function drawThumb(ref) {
+  const c = ref.thumb.getContext("2d");
+  c.clearRect(0, 0, ref.thumb.width, ref.thumb.height);
+  c.drawImage(ref.layer.mask, 0, 0, ref.thumb.width, ref.thumb.height);
 }
 
 async function useMaskFile(file) {
-  if (!state.target) return say("Open the photo first.");
+  if (!state.doc) return say("Open the photo first.");
   const bitmap = await decode(file);
-  const { width, height } = state.target.bitmap;
+  const { width, height } = state.doc.bitmap;
+  const what = isTarget(state.doc) ? "the photo" : `reference ${refOf(state.doc) + 1}`;
   if (bitmap.width !== width || bitmap.height !== height) {
-    return say(`The mask is ${bitmap.width}×${bitmap.height}; the photo is ${width}×${height}.`);
+    return say(`The mask is ${bitmap.width}×${bitmap.height}; ${what} is ${width}×${height}.`);
   }
   // The CLI's rule: alpha when the mask has transparency, else luminance; >= 127 is hole.
   const c = document.createElement("canvas");
@@ -129,10 +197,11 @@ async function useMaskFile(file) {
   const d = px.data;
   let transparent = false;
   for (let i = 3; i < d.length; i += 4) if (d[i] < 255) { transparent = true; break; }
+  const [r, g, b] = state.doc.colour.match(/\d+/g).map(Number);
   for (let i = 0; i < d.length; i += 4) {
     const v = transparent ? d[i + 3] : 0.299 * d[i] + 0.587 * d[i + 1] + 0.114 * d[i + 2];
     const hole = v >= 127;
-    d[i] = 255; d[i + 1] = 0; d[i + 2] = 160; d[i + 3] = hole ? 255 : 0;
+    d[i] = r; d[i + 1] = g; d[i + 2] = b; d[i + 3] = hole ? 255 : 0;
   }
   cc.putImageData(px, 0, 0);
   pushOp({ type: "mask", canvas: c });
@@ -150,7 +219,8 @@ function wireDrop(zone, onFiles) {
 
 // ---------------------------------------------------------------- the mask (operation list)
 
-function drawOp(op) {
+function drawOp(op, layer = state.doc) {
+  const { mask, mctx } = layer;
   if (op.type === "clear") {
     mctx.clearRect(0, 0, mask.width, mask.height);
   } else if (op.type === "mask") {
@@ -159,7 +229,7 @@ function drawOp(op) {
     mctx.drawImage(op.canvas, 0, 0);
   } else {
     mctx.globalCompositeOperation = op.erase ? "destination-out" : "source-over";
-    mctx.strokeStyle = mctx.fillStyle = HOLE_RGB;
+    mctx.strokeStyle = mctx.fillStyle = layer.colour;
     mctx.lineWidth = op.size;
     mctx.lineCap = mctx.lineJoin = "round";
     const p = op.points;
@@ -178,35 +248,46 @@ function drawOp(op) {
 }
 
 function rebuildMask() {
-  mctx.clearRect(0, 0, mask.width, mask.height);
-  state.ops.forEach(drawOp);
+  const layer = state.doc;
+  layer.mctx.clearRect(0, 0, layer.mask.width, layer.mask.height);
+  layer.ops.forEach((op) => drawOp(op, layer));
   render();
 }
 
-function pushOp(op) {
-  state.ops.push(op);
-  state.redo = [];
+// After the open layer's operation list changed: redraw, and a reference's thumbnail too.
+function masksChanged() {
   rebuildMask();
+  if (!isTarget(state.doc)) {
+    state.refsVersion++;
+    renderRefs();
+  }
   update();
+}
+
+function pushOp(op) {
+  state.doc.ops.push(op);
+  state.doc.redo = [];
+  masksChanged();
 }
 
 function undo() {
-  if (!state.ops.length) return;
-  state.redo.push(state.ops.pop());
-  rebuildMask();
-  update();
+  if (!state.doc.ops.length) return;
+  state.doc.redo.push(state.doc.ops.pop());
+  masksChanged();
 }
 
 function redo() {
-  if (!state.redo.length) return;
-  state.ops.push(state.redo.pop());
-  rebuildMask();
-  update();
+  if (!state.doc.redo.length) return;
+  state.doc.ops.push(state.doc.redo.pop());
+  masksChanged();
 }
 
-function maskIsEmpty() {
-  return !state.ops.length || state.ops[state.ops.length - 1].type === "clear";
+function maskIsEmpty(layer = state.doc) {
+  return !layer.ops.length || layer.ops[layer.ops.length - 1].type === "clear";
 }
+
+// Whether the open photo shows a fill's result (strokes then pan it: the hole cannot change).
+const showingResult = () => Boolean(state.result) && isTarget(state.doc);
 
 // ---------------------------------------------------------------- view: zoom, pan, render
 
@@ -218,8 +299,8 @@ function resize() {
 }
 
 function fit() {
-  if (!state.target) return;
-  const { width, height } = state.target.bitmap;
+  if (!state.doc) return;
+  const { width, height } = state.doc.bitmap;
   const s = Math.min(view.width / width, view.height / height);
   state.view = { scale: s, ox: (view.width - width * s) / 2, oy: (view.height - height * s) / 2 };
   render();
@@ -253,13 +334,13 @@ function canvasPoint(e) {
 function render() {
   ctx.setTransform(1, 0, 0, 1, 0, 0);
   ctx.clearRect(0, 0, view.width, view.height);
-  if (!state.target) return;
+  if (!state.doc) return;
   const v = state.view;
-  const { width, height } = state.target.bitmap;
+  const { width, height } = state.doc.bitmap;
   ctx.setTransform(v.scale, 0, 0, v.scale, v.ox, v.oy);
   ctx.imageSmoothingEnabled = v.scale < 2;
-  ctx.drawImage(state.target.bitmap, 0, 0);
-  if (state.result) {
+  ctx.drawImage(state.doc.bitmap, 0, 0);
+  if (showingResult()) {
     const split = (Number($("split").value) / 100) * width;
     ctx.save();
     ctx.beginPath();
@@ -272,11 +353,11 @@ function render() {
     ctx.fillRect(split - 1 / v.scale, 0, 2 / v.scale, height);
   } else {
     ctx.globalAlpha = MASK_OPACITY;
-    ctx.drawImage(mask, 0, 0);
+    ctx.drawImage(state.doc.mask, 0, 0);
     ctx.globalAlpha = 1;
   }
   ctx.setTransform(1, 0, 0, 1, 0, 0);
-  if (state.pointer && !state.result && state.tool !== "pan" && !state.spaceDown) {
+  if (state.pointer && !showingResult() && state.tool !== "pan" && !state.spaceDown) {
     ctx.strokeStyle = "#fff";
     ctx.lineWidth = 1.5;
     ctx.beginPath();
@@ -300,11 +381,11 @@ function setTool(tool) {
 }
 
 view.addEventListener("pointerdown", (e) => {
-  if (!state.target) return;
+  if (!state.doc) return;
   view.focus();
   view.setPointerCapture(e.pointerId);
   const [x, y] = canvasPoint(e);
-  const panning = e.button === 1 || state.tool === "pan" || state.spaceDown || state.result;
+  const panning = e.button === 1 || state.tool === "pan" || state.spaceDown || showingResult();
   if (panning) {
     state.pan = { x, y, ox: state.view.ox, oy: state.view.oy };
     return;
@@ -349,7 +430,7 @@ view.addEventListener("wheel", (e) => {
 
 document.addEventListener("keydown", (e) => {
   const typing = ["INPUT", "SELECT", "TEXTAREA"].includes(e.target.tagName) && e.target.type !== "range";
-  if (typing || !state.target) return;
+  if (typing || !state.doc) return;
   const mod = e.ctrlKey || e.metaKey;
   const key = e.key.toLowerCase();
   let handled = true;
@@ -364,6 +445,7 @@ document.addEventListener("keydown", (e) => {
   else if (key === "+" || key === "=") zoomAt(1.25);
   else if (key === "-") zoomAt(0.8);
   else if (key === "0") fit();
+  else if (key === "escape" && !isTarget(state.doc)) openLayer(state.target.layer);
   else if (e.target === view && key.startsWith("arrow")) {
     const d = 60;
     panBy(key === "arrowleft" ? d : key === "arrowright" ? -d : 0, key === "arrowup" ? d : key === "arrowdown" ? -d : 0);
@@ -465,25 +547,35 @@ function configOverrides() {
 
 function update() {
   const busy = Boolean(state.job);
-  $("fill").disabled = busy || !state.target || !state.refs.length || maskIsEmpty() || Boolean(state.result);
+  // After a fill, filling again is worth it once the references or their masks changed.
+  const filled = Boolean(state.result) && state.result.refsVersion === state.refsVersion;
+  $("fill").disabled =
+    busy || !state.target || !state.refs.length || maskIsEmpty(state.target.layer) || filled;
+  $("fill").textContent = state.result && !filled ? "Fill again" : "Fill";
   $("cancel").hidden = !busy;
-  $("undo").disabled = !state.ops.length || Boolean(state.result);
-  $("redo").disabled = !state.redo.length || Boolean(state.result);
+  const doc = state.doc;
+  $("undo").disabled = !doc || !doc.ops.length || showingResult();
+  $("redo").disabled = !doc || !doc.redo.length || showingResult();
 }
+
+const pngOf = (canvas) => new Promise((resolve) => canvas.toBlob(resolve, "image/png"));
 
 async function startFill() {
   say("");
   const form = new FormData();
   form.append("target", state.target.blob, "target");
-  const maskBlob = await new Promise((resolve) => mask.toBlob(resolve, "image/png"));
-  form.append("mask", maskBlob, "mask.png");
+  form.append("mask", await pngOf(state.target.layer.mask), "mask.png");
   state.refs.forEach((r) => form.append("sources", r.file, r.file.name));
+  // source_mask_k: what must never be copied from the k-th reference (alpha >= 127)
+  for (const [i, r] of state.refs.entries()) {
+    if (!maskIsEmpty(r.layer)) form.append(`source_mask_${i + 1}`, await pngOf(r.layer.mask), `reference-${i + 1}-mask.png`);
+  }
   const overrides = configOverrides();
   if (Object.keys(overrides).length) form.append("config", JSON.stringify(overrides));
   $("progress").hidden = false;
   $("progress-bar").value = 0;
   $("stage-text").textContent = "Uploading…";
-  state.job = { id: null, timer: null };
+  state.job = { id: null, timer: null, refsVersion: state.refsVersion };
   update();
   let resp;
   try {
@@ -540,7 +632,7 @@ async function fetchBitmap(url) {
 }
 
 async function showResult(job) {
-  const id = state.job.id;
+  const { id, refsVersion } = state.job;
   let result, coverage;
   try {
     result = await fetchBitmap(`/api/v1/jobs/${id}/result`);
@@ -548,7 +640,7 @@ async function showResult(job) {
   } catch (e) {
     return endJob(`The result could not be loaded: ${e.message}`);
   }
-  state.result = { bitmap: result.bitmap, blob: result.blob, coverage: coverage.bitmap, data: job };
+  state.result = { bitmap: result.bitmap, blob: result.blob, coverage: coverage.bitmap, data: job, refsVersion };
   endJob("");
   $("summary").textContent = `Hole filled: ${job.summary}.`;
   const legend = $("legend");
@@ -569,7 +661,8 @@ async function showResult(job) {
   $("notices").textContent = notes.join(" ");
   $("download").href = `/api/v1/jobs/${id}/result`;
   $("result").hidden = false;
-  $("compare").hidden = false;
+  $("compare").hidden = !isTarget(state.doc);
+  resize();
   $("split").value = 50;
   update();
   render();
@@ -603,7 +696,8 @@ $("tool-pan").addEventListener("click", () => setTool("pan"));
 $("brush-size").addEventListener("input", () => { $("brush-size-value").textContent = $("brush-size").value; });
 $("undo").addEventListener("click", undo);
 $("redo").addEventListener("click", redo);
-$("clear").addEventListener("click", () => { if (!maskIsEmpty()) pushOp({ type: "clear" }); });
+$("clear").addEventListener("click", () => { if (state.doc && !maskIsEmpty()) pushOp({ type: "clear" }); });
+$("back-to-photo").addEventListener("click", () => openLayer(state.target.layer));
 $("zoom-in").addEventListener("click", () => zoomAt(1.25));
 $("zoom-out").addEventListener("click", () => zoomAt(0.8));
 $("zoom-fit").addEventListener("click", fit);
@@ -612,6 +706,6 @@ $("cancel").addEventListener("click", cancelFill);
 $("split").addEventListener("input", render);
 $("show-coverage").addEventListener("change", render);
 $("keep-editing").addEventListener("click", () => keepEditing().catch((e) => say(e.message)));
-window.addEventListener("resize", () => { if (state.target) { resize(); fit(); } });
+window.addEventListener("resize", () => { if (state.doc) { resize(); fit(); } });
 loadFields();
 update();
