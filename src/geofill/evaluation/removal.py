@@ -96,16 +96,22 @@ class RemovalCase:
 
     ``pair`` is what the methods get (target and references with the objects drawn in), ``truth``
     the clean target, ``hole`` the hole, ``objects`` the object pixels the leak metric compares
-    with, in the target frame: (HxWx3 uint8 image, HxW bool where it holds an object pixel)."""
+    with, in the target frame: (HxWx3 uint8 image, HxW bool where it holds an object pixel).
+    ``objects`` are the protocol's own (static: the object as drawn in the target; strangers: each
+    reference's strangers mapped into the target), ``extra_objects`` what ``leak_all`` adds
+    (static: each reference's object mapped into the target as if it were background; strangers:
+    the target's own cutout)."""
 
     protocol: str
     pair: Pair
     truth: np.ndarray
     hole: np.ndarray
     objects: list[tuple[np.ndarray, np.ndarray]]
+    extra_objects: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
     info: dict[str, Any] = field(default_factory=dict)
     stroke_width_720p: float = 0.0
     stroke_width_px: float = 0.0
+    placement: StaticPlacement | None = None
 
 
 def case_seed(protocol: str, pair_id: str, seed: int) -> int:
@@ -133,13 +139,22 @@ def hole_dilation_px(height: int, width: int) -> int:
 
 
 @dataclass
-class _Placement:
+class StaticPlacement:
+    """Where the static object is: ``blob`` in target pixels on the plane ``z = z_object`` of the
+    target camera (``z_object = fraction * z_near``, the nearest scene depth around it), the
+    plane's homography target -> each reference, the fraction of the object each reference sees,
+    and how many scene points the depth came from (0: exact depth)."""
+
     blob: Blob
     z_near: float
     fraction: float
     homographies: list[np.ndarray]
     visible: list[float]
     n_points: int
+
+    @property
+    def z_object(self) -> float:
+        return self.fraction * self.z_near
 
     @property
     def score(self) -> float:
@@ -193,7 +208,7 @@ def _visible_fraction(
 
 def _propose(
     rng: np.random.Generator, pair: Pair, g: PairGeometry, points: ScenePoints | None
-) -> _Placement | None:
+) -> StaticPlacement | None:
     h, w = pair.target.shape[:2]
     shape = random_blob(rng)
     area = rng.uniform(*STATIC_AREA_RANGE) * h * w
@@ -215,7 +230,7 @@ def _propose(
         H = plane_homography(g.K_target, K, T, z_obj)
         homographies.append(H)
         visible.append(_visible_fraction(pts, H, source.shape, z_obj, K, T, g.depth_source(k)))
-    return _Placement(blob, z_near, fraction, homographies, visible, n_points)
+    return StaticPlacement(blob, z_near, fraction, homographies, visible, n_points)
 
 
 def static_case(pair: Pair, seed: int = 0) -> RemovalCase:
@@ -232,7 +247,7 @@ def static_case(pair: Pair, seed: int = 0) -> RemovalCase:
         if len(points.z) < _MIN_POINTS_NEAR:
             raise ProtocolSkip(f"only {len(points.z)} triangulated scene points")
     rng = np.random.default_rng(case_seed("static", pair.id, seed))
-    best: _Placement | None = None
+    best: StaticPlacement | None = None
     for _ in range(_TRIES):
         cand = _propose(rng, pair, g, points)
         if cand is not None and (best is None or cand.score > best.score):
@@ -241,7 +256,7 @@ def static_case(pair: Pair, seed: int = 0) -> RemovalCase:
             break
     if best is None:
         raise ProtocolSkip("no placement of the object with scene depth around it")
-    z_obj = best.fraction * best.z_near
+    z_obj = best.z_object
     cutout = make_cutout(rng, best.blob, grey=is_grey(truth))
     shown, alpha = draw(truth, cutout)
     r = hole_dilation_px(h, w)
@@ -273,11 +288,11 @@ def static_case(pair: Pair, seed: int = 0) -> RemovalCase:
             }
         )
     # Where a method that takes the hole for background would copy each reference's object to.
-    objects = [(shown, hole)]
+    extra = []
     revealed = np.zeros((len(sources), int(hole.sum())), bool)
     for k, m in enumerate(reference_maps(pair, g, hole, points)):
         obj, mask, covered = mapped_back(truth, hole, sources[k], alphas[k], m)
-        objects.append((obj, mask))
+        extra.append((obj, mask))
         revealed[k, m.valid] = ~covered
         refs[k]["revealed"] = round(float(revealed[k].mean()), 4)
         refs[k]["mapping"] = m.kind
@@ -294,7 +309,7 @@ def static_case(pair: Pair, seed: int = 0) -> RemovalCase:
         "references": refs,
     }
     shown_pair = replace(pair, target=shown, sources=sources)
-    return RemovalCase("static", shown_pair, truth, hole, objects, info)
+    return RemovalCase("static", shown_pair, truth, hole, [(shown, hole)], extra, info, placement=best)
 
 
 def mapped_back(
@@ -365,7 +380,7 @@ def strangers_case(
     crop = photo_crop(rng, xs.max() - x0 + 1, ys.max() - y0 + 1, grey)
     shown = truth.copy()
     shown[ys, xs] = np.clip(np.rint(crop[ys - y0, xs - x0]), 0, 255).astype(np.uint8)
-    objects = [(shown, hole)]
+    objects = []
     g = pair_geometry(pair)
     maps = reference_maps(pair, g, hole)
     width_px = stroke_width_px(pair, width_720p)
@@ -400,7 +415,9 @@ def strangers_case(
         "references": refs,
     }
     shown_pair = replace(pair, target=shown, sources=sources)
-    return RemovalCase("strangers", shown_pair, truth, hole, objects, info, float(width_720p), width_px)
+    return RemovalCase(
+        "strangers", shown_pair, truth, hole, objects, [(shown, hole)], info, float(width_720p), width_px
+    )
 
 
 def make_case(

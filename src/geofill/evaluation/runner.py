@@ -139,11 +139,9 @@ def _evaluate_pair(
             row.ssim_hole = ssim(image, truth, hole.mask)
             if case is not None:
                 found = leak(image, truth, case.objects, hole.mask)
-                row.leak, row.leaked_px, row.distinguishable_px = (
-                    found.fraction,
-                    found.leaked,
-                    found.distinguishable,
-                )
+                row.leak, row.leaked_px = found.fraction, found.leaked
+                row.distinguishable_px = found.distinguishable
+                row.leak_all = leak(image, truth, [*case.objects, *case.extra_objects], hole.mask).fraction
             row.lpips_status = lpips.status
             if lpips.scorer is not None:
                 try:
@@ -183,7 +181,7 @@ class _Progress:
         if row.ok:
             tail = f"psnr_hole={row.psnr_hole:.2f} ssim_hole={row.ssim_hole:.3f} {row.time_s:.2f}s"
             if row.distinguishable_px is not None:
-                tail += f" leak={fmt_number(row.leak, 3)}"
+                tail += f" leak={fmt_number(row.leak, 3)} (all {fmt_number(row.leak_all, 3)})"
         else:
             tail = f"FAILED {row.error}"
         print(f"{head}: {tail}", file=sys.stderr, flush=True)

@@ -36,6 +36,7 @@ class EvalRow:
     leak: float | None = None  # removal protocols: see metrics.leak
     leaked_px: int | None = None
     distinguishable_px: int | None = None
+    leak_all: float | None = None
     time_s: float | None = None
     error: str = ""
     group: str = ""
@@ -81,7 +82,7 @@ def write_csv(path: Path, fields: Sequence[str], records: Sequence[Mapping[str, 
 
 
 #: Extra results.csv columns of the removal protocols.
-LEAK_FIELDS = ("leak", "leaked_px", "distinguishable_px")
+LEAK_FIELDS = ("leak", "leaked_px", "distinguishable_px", "leak_all")
 
 
 def write_results_csv(path: Path, rows: Sequence[EvalRow], by: str | None, leak: bool = False) -> None:
@@ -182,7 +183,8 @@ def summary_markdown(
         "## Scores (mean / median over pairs the method ran on)",
         "",
     ]
-    metrics = (*_METRICS, ("lpips", "LPIPS", 4), *((("leak", "leak", 3),) if removal else ()))
+    leaks = (("leak", "leak", 3), ("leak_all", "leak (all)", 3))
+    metrics = (*_METRICS, ("lpips", "LPIPS", 4), *(leaks if removal else ()))
     header = ["method", "ok", "failed", *(label for _, label, _ in metrics), "median time (s)"]
     body = []
     for m in methods:
@@ -240,37 +242,33 @@ def summary_markdown(
 LEAK_TEXT = (
     "fraction of the hole pixels where an object is distinguishable from the truth (RGB distance "
     "> 30) at which the output is nearer to the object than half its distance to the truth; objects: "
-    "static, the object as drawn in the target; strangers, the target's cutout and each reference's "
-    "strangers mapped into the target. Per row: leaked / distinguishable pixels"
+    "static, the object as drawn in the target; strangers, each reference's strangers mapped into the "
+    "target. leak (all) adds, static: each reference's object mapped into the target as if it were "
+    "background; strangers: the target's own cutout. A method that cannot copy (opencv_inpaint) "
+    "shows the chance level"
 )
 
 
 def per_set_markdown(rows: Sequence[EvalRow], methods: Sequence[str]) -> list[str]:
-    """Per set and method: hole PSNR and leak (leaked / distinguishable pixels)."""
+    """Per set and method: hole PSNR, leak (leaked / distinguishable pixels) and leak (all)."""
+    order = {m: i for i, m in enumerate(methods)}
     body = []
-    for pid in sorted({r.pair for r in rows}):
-        for m in methods:
-            for r in rows:
-                if r.pair != pid or r.method != m:
-                    continue
-                if not r.ok:
-                    body.append([pid, m, "FAILED", "-", "-"])
-                    continue
-                body.append(
-                    [
-                        pid,
-                        m,
-                        fmt_number(r.psnr_hole, 2),
-                        fmt_number(r.leak, 3),
-                        f"{r.leaked_px}/{r.distinguishable_px}",
-                    ]
-                )
-    return [
-        "",
-        "## Per set",
-        "",
-        *_md_table(["set", "method", "PSNR hole", "leak", "leaked / distinguishable px"], body),
-    ]
+    for r in sorted(rows, key=lambda r: (r.pair, order.get(r.method, len(order)))):
+        if not r.ok:
+            body.append([r.pair, r.method, "FAILED", "-", "-", "-"])
+            continue
+        body.append(
+            [
+                r.pair,
+                r.method,
+                fmt_number(r.psnr_hole, 2),
+                fmt_number(r.leak, 3),
+                f"{r.leaked_px}/{r.distinguishable_px}",
+                fmt_number(r.leak_all, 3),
+            ]
+        )
+    header = ["set", "method", "PSNR hole", "leak", "leaked / distinguishable px", "leak (all)"]
+    return ["", "## Per set", "", *_md_table(header, body)]
 
 
 def multi_reference_markdown(rows: Sequence[EvalRow], methods: Sequence[str]) -> list[str]:
