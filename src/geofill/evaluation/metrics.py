@@ -1,5 +1,6 @@
-"""Image-quality metrics of the evaluation: PSNR, SSIM (whole image and hole only) and LPIPS from a
-user-supplied local model file.
+"""Image-quality metrics of the evaluation: PSNR, SSIM (whole image and hole only), LPIPS from a
+user-supplied local model file, and the removal protocols' leak (:func:`leak`: how much of an
+object the output reproduces).
 
 Whole-image scores follow the inpainting papers' convention (the filled image against the original
 target, every pixel counted, data range 255). Hole-only scores count the hole's pixels only, which

@@ -63,8 +63,9 @@ PROTOCOL_TEXT = {
     "target showing the cutout; truth = the clean target",
 }
 #: The static object's depth as a fraction of the nearest scene depth around it: drawn uniformly
-#: in this range per placement tried (nearer: more parallax, but it leaves the references sooner).
-DEPTH_FRACTION = (0.5, 0.8)
+#: in this range per placement tried (nearer: more parallax, more of the background behind it
+#: seen by the references, but it leaves their frames sooner; nearer the background: less).
+DEPTH_FRACTION = (0.5, 0.9)
 #: Percentile of the triangulated depths around the object taken as the nearest scene depth
 #: (robust to a few wrong points).
 NEAR_PERCENTILE = 5.0
@@ -385,6 +386,7 @@ def strangers_case(
     maps = reference_maps(pair, g, hole)
     width_px = stroke_width_px(pair, width_720p)
     sources, refs = [], []
+    revealed = np.zeros(len(ys), bool)
     for source, m in zip(pair.sources, maps, strict=True):
         ref_info: dict[str, Any] = {
             "mapping": m.kind,
@@ -394,6 +396,7 @@ def strangers_case(
         pts = m.xy[m.valid]
         if len(pts) < max(20, 0.01 * len(m.valid)):
             ref_info.update(n_strangers=0, coverage=0.0)
+            revealed |= m.valid
             sources.append(source)
             refs.append(ref_info)
             continue
@@ -407,11 +410,13 @@ def strangers_case(
         sources.append(drawn)
         obj, mask, covered = mapped_back(truth, hole, drawn, 1.0 - alpha_none, m)
         objects.append((obj, mask))
+        revealed[m.valid] |= ~covered
         ref_info.update(n_strangers=len(blobs), goal=round(goal, 3), coverage=round(float(covered.mean()), 4))
         refs.append(ref_info)
     info = {
         "hole_area": round(float(hole.mean()), 4),
         "max_coverage": max((r["coverage"] for r in refs), default=0.0),
+        "hole_revealed": round(float(revealed.mean()), 4),
         "references": refs,
     }
     shown_pair = replace(pair, target=shown, sources=sources)

@@ -6,7 +6,8 @@ written by :mod:`.tables` and :mod:`.figures`.
 
 Files written to ``out_dir`` by :func:`run_eval`: ``results.csv`` (one row per pair x method),
 ``timings.csv`` (per-stage seconds), ``summary.md``, ``contact_<pair>.jpg`` and the masks used
-(``masks/<pair>.png``); by :func:`sweep`: ``sweep_results.csv``, ``sweep.csv``, ``sweep.md`` and
+(``masks/<pair>.png``); with a removal protocol (:func:`run_removal_eval`) also the leak columns
+and ``cases.json``; by :func:`sweep`: ``sweep_results.csv``, ``sweep.csv``, ``sweep.md`` and
 ``sweep.png``."""
 
 from __future__ import annotations
@@ -331,6 +332,7 @@ def run_removal_eval(
         "seed": seed,
         "lpips": lpips.description,
         "skipped": skipped,
+        "revealed": {c.pair.id: c.info["hole_revealed"] for c in cases},
     }
     names = list(dict.fromkeys(r.method for r in rows))
     (out / "summary.md").write_text(summary_markdown(rows, names, settings, by))

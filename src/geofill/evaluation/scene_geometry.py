@@ -13,7 +13,6 @@ from typing import Any
 
 import cv2
 import numpy as np
-from scipy.interpolate import LinearNDInterpolator, NearestNDInterpolator
 
 from ..camera import Intrinsics
 from ..config import GeometryConfig, MatchingConfig
@@ -163,6 +162,8 @@ def _exact_maps(pair: Pair, g: PairGeometry, region: np.ndarray) -> list[Referen
 def _interpolated_depth(points: ScenePoints, xy: np.ndarray) -> np.ndarray:
     """z-depth at target pixels ``xy``: inverse depth of the scene points interpolated linearly
     (Delaunay), nearest point outside their hull."""
+    from scipy.interpolate import LinearNDInterpolator, NearestNDInterpolator
+
     inv = 1.0 / points.z
     values = LinearNDInterpolator(points.uv, inv)(xy)
     missing = ~np.isfinite(values)

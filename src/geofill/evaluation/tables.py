@@ -229,7 +229,7 @@ def summary_markdown(
 
     lines += multi_reference_markdown(rows, methods)
     if removal:
-        lines += per_set_markdown(rows, methods)
+        lines += per_set_markdown(rows, methods, settings.get("revealed", {}))
         lines += ["", "## Sets skipped by the protocol", ""]
         lines += [f"- {pid}: {why}" for pid, why in settings.get("skipped", {}).items()] or ["none"]
     failures = [r for r in rows if not r.ok]
@@ -249,17 +249,23 @@ LEAK_TEXT = (
 )
 
 
-def per_set_markdown(rows: Sequence[EvalRow], methods: Sequence[str]) -> list[str]:
-    """Per set and method: hole PSNR, leak (leaked / distinguishable pixels) and leak (all)."""
+def per_set_markdown(
+    rows: Sequence[EvalRow], methods: Sequence[str], revealed: Mapping[str, float]
+) -> list[str]:
+    """Per set and method: the fraction of the hole's background the references see unhidden
+    (``revealed``: what a perfect copy could recover), hole PSNR, leak (leaked / distinguishable
+    pixels) and leak (all)."""
     order = {m: i for i, m in enumerate(methods)}
     body = []
     for r in sorted(rows, key=lambda r: (r.pair, order.get(r.method, len(order)))):
+        seen = fmt_number(revealed.get(r.pair), 3)
         if not r.ok:
-            body.append([r.pair, r.method, "FAILED", "-", "-", "-"])
+            body.append([r.pair, seen, r.method, "FAILED", "-", "-", "-"])
             continue
         body.append(
             [
                 r.pair,
+                seen,
                 r.method,
                 fmt_number(r.psnr_hole, 2),
                 fmt_number(r.leak, 3),
@@ -267,7 +273,7 @@ def per_set_markdown(rows: Sequence[EvalRow], methods: Sequence[str]) -> list[st
                 fmt_number(r.leak_all, 3),
             ]
         )
-    header = ["set", "method", "PSNR hole", "leak", "leaked / distinguishable px", "leak (all)"]
+    header = ["set", "revealed", "method", "PSNR hole", "leak", "leaked / distinguishable px", "leak (all)"]
     return ["", "## Per set", "", *_md_table(header, body)]
 
 
