@@ -41,11 +41,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action="append",
         required=True,
         metavar="DIR",
-        help="a pair folder, a folder of pair folders, or synthetic:N (repeatable)",
+        help="a pair folder, a folder of pair folders, synthetic:N (rendered pairs) or synthetic-views:N "
+        "(rendered sets with two references) (repeatable)",
     )
     parser.add_argument("--out", required=True, metavar="OUTDIR", help="folder for the results")
     parser.add_argument(
-        "--seed", type=int, default=0, help="mask seed, combined with each pair id (default 0)"
+        "--seed",
+        type=int,
+        default=0,
+        help="mask seed (and removal protocols' cases), combined with each pair id (default 0)",
     )
     parser.add_argument(
         "--methods",
