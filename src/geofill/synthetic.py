@@ -172,6 +172,15 @@ class Scene:
         rgb = np.clip(np.rint(colour * 255.0), 0, 255).astype(np.uint8)
         return rgb, depth.reshape(height, width).astype(np.float32)
 
+    def depth_map(self, K: np.ndarray, cam_to_world: np.ndarray, width: int, height: int) -> np.ndarray:
+        """(H, W) float32 z-depth at the pixel centres: the depth :meth:`render` returns, without
+        the colour."""
+        return (
+            self.depth_at(K, cam_to_world, _pixel_grid(width, height))
+            .reshape(height, width)
+            .astype(np.float32)
+        )
+
     def depth_at(self, K: np.ndarray, cam_to_world: np.ndarray, pixels: np.ndarray) -> np.ndarray:
         """Exact float64 z-depth of the first surface through each (N, 2) sub-pixel position (x, y)."""
         pixels = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)

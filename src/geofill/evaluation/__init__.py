@@ -1,5 +1,6 @@
 """Evaluation protocol of the GeoFill paper: brush-stroke holes (masks), baselines, metrics, the
-methods registry, pairs, the runner and its tables and figures.
+methods registry, pairs, the runner and its tables and figures; and the object-removal protocols
+(:mod:`.removal`: ``static``, ``strangers``) with their leak metric.
 
 ``geofill eval`` is :func:`geofill.evaluation.cli.main_eval`; pipelines plug in with
 :func:`register_method`."""
@@ -7,23 +8,29 @@ methods registry, pairs, the runner and its tables and figures.
 from .baselines import BaselineError, homography_fill, opencv_inpaint
 from .masks import brush_stroke_mask, brush_strokes, mask_seed
 from .methods import METHODS, MethodOutput, register_method
-from .metrics import lpips_available, psnr, ssim
+from .metrics import Leak, leak, lpips_available, psnr, ssim
 from .pairs import Pair, PairExif, load_pairs
+from .removal import PROTOCOLS, RemovalCase, make_case
 from .runner import run_eval, sweep
 from .tables import EvalRow
 
 __all__ = [
     "METHODS",
+    "PROTOCOLS",
     "BaselineError",
     "EvalRow",
+    "Leak",
     "MethodOutput",
     "Pair",
     "PairExif",
+    "RemovalCase",
     "brush_stroke_mask",
     "brush_strokes",
     "homography_fill",
+    "leak",
     "load_pairs",
     "lpips_available",
+    "make_case",
     "mask_seed",
     "opencv_inpaint",
     "psnr",

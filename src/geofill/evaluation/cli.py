@@ -12,6 +12,7 @@ from ..errors import GeoFillError
 from .masks import DEFAULT_AREA_RANGE, DEFAULT_STROKE_WIDTH_720P
 from .methods import DEFAULT_METHODS, METHODS, register_geofill_methods, resolve_methods
 from .pairs import load_pairs
+from .removal import PROTOCOLS
 from .runner import REFERENCE_MODES, run_eval, sweep
 
 
@@ -40,11 +41,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action="append",
         required=True,
         metavar="DIR",
-        help="a pair folder, a folder of pair folders, or synthetic:N (repeatable)",
+        help="a pair folder, a folder of pair folders, synthetic:N (rendered pairs) or synthetic-views:N "
+        "(rendered sets with two references) (repeatable)",
     )
     parser.add_argument("--out", required=True, metavar="OUTDIR", help="folder for the results")
     parser.add_argument(
-        "--seed", type=int, default=0, help="mask seed, combined with each pair id (default 0)"
+        "--seed",
+        type=int,
+        default=0,
+        help="mask seed (and removal protocols' cases), combined with each pair id (default 0)",
     )
     parser.add_argument(
         "--methods",
@@ -87,6 +92,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         f"comma-separated (default: {','.join(REFERENCE_MODES)})",
     )
     parser.add_argument(
+        "--protocol",
+        choices=PROTOCOLS,
+        default="restoration",
+        help="restoration (default): a brush-stroke hole cut into the background and blanked; "
+        "static: a planar photo cutout placed in front of the scene and drawn into the target and every "
+        "reference with the GT-pose projection (sets with K and poses, synthetic:N), hole = its "
+        "silhouette; strangers: the brush-stroke hole shows a cutout and other cutouts cover 30-60 %% of "
+        "the hole's background in the references. The removal protocols give the methods the target "
+        "showing the object, score against the clean target and add the leak (how much of the "
+        "object the output reproduces)",
+    )
+    parser.add_argument(
         "--lpips-model",
         metavar="FILE",
         help="local TorchScript/ONNX LPIPS model (default: $GEOFILL_LPIPS_MODEL)",
@@ -95,6 +112,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``geofill eval`` with parsed ``args``; the exit code."""
+    if args.sweep and args.protocol != "restoration":
+        print("geofill eval: --sweep runs the restoration protocol only; drop --protocol", file=sys.stderr)
+        return 2
     if args.sweep and (args.stroke_width is not None or args.by):
         print(
             "geofill eval: --sweep sets its own stroke widths and does not group; drop --stroke-width/--by",
@@ -129,6 +149,7 @@ def run(args: argparse.Namespace) -> int:
                 area_range=args.area_range,
                 lpips_model=args.lpips_model,
                 references=args.references,
+                protocol=args.protocol,
             )
             print(f"summary written to {args.out}/summary.md", file=sys.stderr)
     except GeoFillError as exc:
@@ -141,7 +162,8 @@ def main_eval(argv: list[str] | None = None) -> int:
     """``geofill eval`` entry point."""
     parser = argparse.ArgumentParser(
         prog="geofill eval",
-        description="Cut brush-stroke holes into evaluation pairs, fill them with each method, score them.",
+        description="Cut brush-stroke holes into evaluation pairs (or draw objects to remove into "
+        "them: --protocol), fill them with each method, score them.",
     )
     add_arguments(parser)
     return run(parser.parse_args(argv))

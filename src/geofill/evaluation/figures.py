@@ -1,4 +1,5 @@
-"""The evaluation's pictures: the hole-size sweep's plot and each pair's contact sheet."""
+"""The evaluation's pictures: the hole-size sweep's plot and each pair's contact sheet (restoration
+and removal protocols)."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ import cv2
 import numpy as np
 
 from .pairs import Pair
+from .removal import RemovalCase
 from .tables import EvalRow, fmt_number, mean_or_none, ok_values
 
 
@@ -79,14 +81,42 @@ def _tile(image: np.ndarray, label: str, cell_hw: tuple[int, int]) -> np.ndarray
     return tile
 
 
+def _cell_size(image: np.ndarray) -> tuple[int, int]:
+    h, w = image.shape[:2]
+    s = _TILE_LONG_SIDE / max(h, w)
+    return max(1, round(h * s)), max(1, round(w * s))
+
+
+def _output_tiles(
+    results: Sequence[tuple[EvalRow, np.ndarray | None]], like: np.ndarray, cell: tuple[int, int]
+) -> list[np.ndarray]:
+    """One tile per method: its output labelled with its hole PSNR (and leak, when measured), or
+    FAILED on grey."""
+    tiles = []
+    for row, image in results:
+        if image is None:
+            tiles.append(_tile(np.full_like(like, 128), f"{row.method}: FAILED", cell))
+            continue
+        label = f"{row.method}: hole PSNR {fmt_number(row.psnr_hole, 2)} dB"
+        if row.distinguishable_px is not None:
+            label = f"{row.method}: {fmt_number(row.psnr_hole, 2)} dB, leak {fmt_number(row.leak, 2)}"
+        tiles.append(_tile(image, label, cell))
+    return tiles
+
+
+def _grid(tiles: list[np.ndarray]) -> np.ndarray:
+    while len(tiles) % _SHEET_COLUMNS:
+        tiles.append(np.full_like(tiles[0], 255))
+    rows = [np.hstack(tiles[i : i + _SHEET_COLUMNS]) for i in range(0, len(tiles), _SHEET_COLUMNS)]
+    return np.vstack(rows)
+
+
 def contact_sheet(
     pair: Pair, hole: np.ndarray, results: Sequence[tuple[EvalRow, np.ndarray | None]]
 ) -> np.ndarray:
     """RGB grid: ground truth, masked target (hole in magenta), source, then each method's output
     labelled with its hole PSNR (or FAILED)."""
-    h, w = pair.target.shape[:2]
-    s = _TILE_LONG_SIDE / max(h, w)
-    cell = (max(1, round(h * s)), max(1, round(w * s)))
+    cell = _cell_size(pair.target)
     masked = pair.target.copy()
     masked[hole] = _HOLE_COLOUR
     tiles = [
@@ -94,16 +124,27 @@ def contact_sheet(
         _tile(masked, f"masked target, hole {hole.mean():.1%}", cell),
         _tile(pair.source, "source", cell),
     ]
-    for row, image in results:
-        if image is None:
-            tiles.append(_tile(np.full_like(pair.target, 128), f"{row.method}: FAILED", cell))
-        else:
-            label = f"{row.method}: hole PSNR {fmt_number(row.psnr_hole, 2)} dB"
-            tiles.append(_tile(image, label, cell))
-    while len(tiles) % _SHEET_COLUMNS:
-        tiles.append(np.full_like(tiles[0], 255))
-    rows = [np.hstack(tiles[i : i + _SHEET_COLUMNS]) for i in range(0, len(tiles), _SHEET_COLUMNS)]
-    return np.vstack(rows)
+    return _grid(tiles + _output_tiles(results, pair.target, cell))
+
+
+def removal_contact_sheet(
+    case: RemovalCase, results: Sequence[tuple[EvalRow, np.ndarray | None]]
+) -> np.ndarray:
+    """RGB grid of a removal case: ground truth, the target as the methods get it (showing the
+    object) with the hole's outline in magenta, every reference as the methods get it (with the
+    object or strangers), then each method's output labelled with hole PSNR and leak."""
+    pair = case.pair
+    cell = _cell_size(pair.target)
+    shown = pair.target.copy()
+    outline = case.hole & ~cv2.erode(case.hole.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+    shown[outline] = _HOLE_COLOUR
+    what = "object" if case.protocol == "static" else "strangers"
+    tiles = [
+        _tile(case.truth, f"{pair.id} (ground truth)", cell),
+        _tile(shown, f"target given, hole {case.hole.mean():.1%}", cell),
+    ]
+    tiles += [_tile(source, f"reference {k + 1} with {what}", cell) for k, source in enumerate(pair.sources)]
+    return _grid(tiles + _output_tiles(results, case.truth, cell))
 
 
 def write_contact_sheet(
@@ -111,4 +152,12 @@ def write_contact_sheet(
 ) -> None:
     """:func:`contact_sheet` as a JPEG."""
     sheet = contact_sheet(pair, hole, results)
+    cv2.imwrite(str(path), cv2.cvtColor(sheet, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 90])
+
+
+def write_removal_contact_sheet(
+    path: Path, case: RemovalCase, results: Sequence[tuple[EvalRow, np.ndarray | None]]
+) -> None:
+    """:func:`removal_contact_sheet` as a JPEG."""
+    sheet = removal_contact_sheet(case, results)
     cv2.imwrite(str(path), cv2.cvtColor(sheet, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 90])

@@ -1,5 +1,6 @@
-"""Image-quality metrics of the evaluation: PSNR, SSIM (whole image and hole only) and LPIPS from a
-user-supplied local model file.
+"""Image-quality metrics of the evaluation: PSNR, SSIM (whole image and hole only), LPIPS from a
+user-supplied local model file, and the removal protocols' leak (:func:`leak`: how much of an
+object the output reproduces).
 
 Whole-image scores follow the inpainting papers' convention (the filled image against the original
 target, every pixel counted, data range 255). Hole-only scores count the hole's pixels only, which
@@ -31,6 +32,7 @@ from __future__ import annotations
 
 import os
 import warnings
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -173,3 +175,61 @@ def lpips_available(path: str | os.PathLike | None = None) -> tuple[bool, str]:
     except LpipsUnavailable as exc:
         return False, str(exc)
     return True, f"{scorer.backend} model {scorer.path}"
+
+
+#: Leak: an object pixel is *distinguishable* where it differs from the truth by more than this
+#: (Euclidean distance over RGB, 0-255) ...
+LEAK_MIN_CONTRAST = 30.0
+#: ... and *reproduced* where the output's distance to it is under this fraction of the output's
+#: distance to the truth.
+LEAK_RATIO = 0.5
+
+
+@dataclass(frozen=True)
+class Leak:
+    """How much of an object an output reproduces: ``fraction`` = ``leaked`` / ``distinguishable``
+    (None when no pixel is distinguishable)."""
+
+    fraction: float | None
+    leaked: int
+    distinguishable: int
+
+
+def _rgb_distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return np.linalg.norm(a.astype(np.float32) - b.astype(np.float32), axis=-1)
+
+
+def leak(
+    output: np.ndarray,
+    truth: np.ndarray,
+    objects: Sequence[tuple[np.ndarray, np.ndarray]],
+    region: np.ndarray,
+) -> Leak:
+    """The fraction of ``region``'s pixels (the hole) where ``output`` reproduces an object.
+
+    ``objects``: (HxWx3 uint8 image, HxW bool where it holds an object pixel) in the target's
+    frame. Per pixel p and object k (where its mask holds), with Euclidean RGB distances
+    (0-255): p is *distinguishable* for k when ``|obj_k - truth| > 30`` and *leaked* for k when
+    it is distinguishable and ``|out - obj_k| < 0.5 |out - truth|``. A pixel counts as
+    distinguishable / leaked when it is for any object; the fraction is over the distinguishable
+    pixels only.
+
+    >>> truth = np.zeros((1, 4, 3), np.uint8)
+    >>> obj = np.full((1, 4, 3), 200, np.uint8)
+    >>> out = np.array([[[200] * 3, [190] * 3, [20] * 3, [0] * 3]], np.uint8)
+    >>> leak(out, truth, [(obj, np.ones((1, 4), bool))], np.ones((1, 4), bool))
+    Leak(fraction=0.5, leaked=2, distinguishable=4)
+    """
+    _check(output, truth, region)
+    out, tru = output[region], truth[region]
+    d_true = _rgb_distance(out, tru)
+    distinguishable = np.zeros(len(out), bool)
+    leaked = np.zeros(len(out), bool)
+    for image, mask in objects:
+        _check(image, truth, None)
+        obj = image[region]
+        there = mask[region] & (_rgb_distance(obj, tru) > LEAK_MIN_CONTRAST)
+        distinguishable |= there
+        leaked |= there & (_rgb_distance(out, obj) < LEAK_RATIO * d_true)
+    n = int(distinguishable.sum())
+    return Leak(float(leaked.sum()) / n if n else None, int(leaked.sum()), n)

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 
 from ..config import FillConfig
@@ -36,10 +37,42 @@ class PairExif:
         return self.sources[0]
 
 
+@dataclass(frozen=True)
+class PairGeometry:
+    """Known camera geometry of a pair, as far as it is known (the removal protocols use it).
+
+    ``K_sources[k]`` / ``T_source_to_target[k]`` (4x4, ``X_t = R X_s + t``, OpenCV axes) are None
+    where unknown; ``depth_sources[k]`` is a reference's ground-truth z-depth (same units as T; 0 =
+    invalid) or None. Synthetic scenes add the exact target depth and the scene itself with the
+    target's camera-to-world pose (for exact visibility)."""
+
+    K_target: np.ndarray | None
+    K_sources: tuple[np.ndarray | None, ...]
+    T_source_to_target: tuple[np.ndarray | None, ...]
+    depth_sources: tuple[np.ndarray | None, ...] = ()
+    depth_target: np.ndarray | None = None
+    scene: Any = None  # geofill.synthetic.Scene
+    target_to_world: np.ndarray | None = None
+
+    @property
+    def posed(self) -> bool:
+        """Every reference has K and a pose, and the target has K."""
+        return (
+            self.K_target is not None
+            and all(K is not None for K in self.K_sources)
+            and all(T is not None for T in self.T_source_to_target)
+        )
+
+    def depth_source(self, k: int) -> np.ndarray | None:
+        """Reference ``k``'s ground-truth depth, if known."""
+        return self.depth_sources[k] if k < len(self.depth_sources) else None
+
+
 @dataclass
 class Pair:
     """One evaluation pair or multi-reference set: target (ground truth) and its references
-    (primary first), HxWx3 uint8 RGB."""
+    (primary first), HxWx3 uint8 RGB; ``geometry`` is set for synthetic scenes (real sets carry
+    theirs in ``meta``: see :func:`pair_geometry`)."""
 
     id: str
     target: np.ndarray
@@ -47,6 +80,7 @@ class Pair:
     meta: dict[str, Any]
     path: Path | None
     exif: PairExif = PairExif()
+    geometry: PairGeometry | None = None
 
     @property
     def source(self) -> np.ndarray:
@@ -56,6 +90,7 @@ class Pair:
 
 _IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 SYNTHETIC_PREFIX = "synthetic:"
+SYNTHETIC_VIEWS_PREFIX = "synthetic-views:"
 _MIN_SIDE_PX = FillConfig().min_side_px
 
 
@@ -99,10 +134,39 @@ def synthetic_pairs(n: int) -> list[Pair]:
     pairs = []
     for i in range(n):
         sp = make_pair(seed=i)
-        pairs.append(
-            Pair(f"synthetic_{i:03d}", sp.target, [sp.source], {"kind": "synthetic", "seed": i}, None)
+        geometry = PairGeometry(
+            sp.K_target,
+            (sp.K_source,),
+            (sp.T_source_to_target,),
+            (sp.depth_source,),
+            sp.depth_target,
+            sp.scene,
+            sp.target_to_world,
         )
+        meta = {"kind": "synthetic", "seed": i}
+        pairs.append(Pair(f"synthetic_{i:03d}", sp.target, [sp.source], meta, None, geometry=geometry))
     return pairs
+
+
+def synthetic_view_sets(n: int) -> list[Pair]:
+    """``n`` synthetic multi-reference sets from :func:`geofill.synthetic.make_views` (seeds
+    0..n-1: the target of ``synthetic_<seed>`` with a reference stepped left and one stepped right)."""
+    from ..synthetic import make_views
+
+    sets = []
+    for i in range(n):
+        sv = make_views(seed=i)
+        h, w = sv.target.shape[:2]
+        pose_t = sv.scene.target_pose()
+        depths = tuple(sv.scene.depth_map(sv.K, pose_t @ T, w, h) for T in sv.T_source_to_target)
+        n_refs = len(sv.sources)
+        geometry = PairGeometry(
+            sv.K, (sv.K,) * n_refs, tuple(sv.T_source_to_target), depths, sv.depth_target, sv.scene, pose_t
+        )
+        meta = {"kind": "synthetic (views)", "seed": i}
+        exif = PairExif(None, (None,) * n_refs)
+        sets.append(Pair(f"synthetic_views_{i:03d}", sv.target, list(sv.sources), meta, None, exif, geometry))
+    return sets
 
 
 def load_pairs(dirs: Sequence[str | Path]) -> list[Pair]:
@@ -111,27 +175,69 @@ def load_pairs(dirs: Sequence[str | Path]) -> list[Pair]:
     pairs: list[Pair] = []
     for entry in dirs:
         text = str(entry)
-        if text.startswith(SYNTHETIC_PREFIX):
-            count = text[len(SYNTHETIC_PREFIX) :]
-            if not count.isdigit() or int(count) < 1:
-                raise InputError(f"'{text}': expected {SYNTHETIC_PREFIX}N with N >= 1")
-            pairs.extend(synthetic_pairs(int(count)))
-            continue
-        folder = Path(entry)
-        if not folder.is_dir():
-            raise MissingFileError(f"pairs folder not found: {folder}")
-        if _find_image(folder, "target") is not None:
-            pairs.append(load_pair(folder))
-            continue
-        subdirs = sorted(d for d in folder.iterdir() if d.is_dir() and _find_image(d, "target") is not None)
-        if not subdirs:
-            raise InputError(f"{folder} holds no pair folders (with target.png/.jpg)")
-        pairs.extend(load_pair(d) for d in subdirs)
+        for prefix, make in (
+            (SYNTHETIC_PREFIX, synthetic_pairs),
+            (SYNTHETIC_VIEWS_PREFIX, synthetic_view_sets),
+        ):
+            if text.startswith(prefix):
+                count = text[len(prefix) :]
+                if not count.isdigit() or int(count) < 1:
+                    raise InputError(f"'{text}': expected {prefix}N with N >= 1")
+                pairs.extend(make(int(count)))
+                break
+        else:
+            pairs.extend(_load_folder(Path(entry)))
     ids = [p.id for p in pairs]
     duplicates = sorted({i for i in ids if ids.count(i) > 1})
     if duplicates:
         raise InputError(f"duplicate pair ids {duplicates}")
     return sorted(pairs, key=lambda p: p.id)
+
+
+def _load_folder(folder: Path) -> list[Pair]:
+    """A pair folder, or a folder of pair folders."""
+    if not folder.is_dir():
+        raise MissingFileError(f"pairs folder not found: {folder}")
+    if _find_image(folder, "target") is not None:
+        return [load_pair(folder)]
+    subdirs = sorted(d for d in folder.iterdir() if d.is_dir() and _find_image(d, "target") is not None)
+    if not subdirs:
+        raise InputError(f"{folder} holds no pair folders (with target.png/.jpg)")
+    return [load_pair(d) for d in subdirs]
+
+
+def _matrix(value: Any, shape: tuple[int, int]) -> np.ndarray | None:
+    if value is None:
+        return None
+    m = np.asarray(value, dtype=np.float64)
+    return m if m.shape == shape and np.all(np.isfinite(m)) else None
+
+
+def pair_geometry(pair: Pair) -> PairGeometry:
+    """What is known of ``pair``'s cameras: its own :attr:`Pair.geometry` (synthetic scenes), else
+    meta.json's ``K_target`` and, per entry of ``sources``, ``K``, ``T_source_to_target`` and the
+    GT ``depth`` file (16-bit PNG, metres = value / 1000) when present."""
+    if pair.geometry is not None:
+        return pair.geometry
+    entries = pair.meta.get("sources")
+    entries = entries if isinstance(entries, list) and len(entries) == len(pair.sources) else []
+    entries += [{}] * (len(pair.sources) - len(entries))
+    depths: list[np.ndarray | None] = []
+    for entry, image in zip(entries, pair.sources, strict=True):
+        name = entry.get("depth") if isinstance(entry, dict) else None
+        path = pair.path / name if pair.path is not None and isinstance(name, str) else None
+        depth = None
+        if path is not None and path.is_file():
+            raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+            if raw is not None and raw.shape[:2] == image.shape[:2]:
+                depth = raw.astype(np.float32) / 1000.0
+        depths.append(depth)
+    return PairGeometry(
+        _matrix(pair.meta.get("K_target"), (3, 3)),
+        tuple(_matrix(e.get("K") if isinstance(e, dict) else None, (3, 3)) for e in entries),
+        tuple(_matrix(e.get("T_source_to_target") if isinstance(e, dict) else None, (4, 4)) for e in entries),
+        tuple(depths),
+    )
 
 
 def group_value(meta: Mapping[str, Any], key: str) -> str:

@@ -6,12 +6,14 @@ written by :mod:`.tables` and :mod:`.figures`.
 
 Files written to ``out_dir`` by :func:`run_eval`: ``results.csv`` (one row per pair x method),
 ``timings.csv`` (per-stage seconds), ``summary.md``, ``contact_<pair>.jpg`` and the masks used
-(``masks/<pair>.png``); by :func:`sweep`: ``sweep_results.csv``, ``sweep.csv``, ``sweep.md`` and
+(``masks/<pair>.png``); with a removal protocol (:func:`run_removal_eval`) also the leak columns
+and ``cases.json``; by :func:`sweep`: ``sweep_results.csv``, ``sweep.csv``, ``sweep.md`` and
 ``sweep.png``."""
 
 from __future__ import annotations
 
 import importlib.util
+import json
 import sys
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -21,7 +23,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .figures import plot_sweep, write_contact_sheet
+from .figures import plot_sweep, write_contact_sheet, write_removal_contact_sheet
 from .masks import (
     DEFAULT_AREA_RANGE,
     DEFAULT_STROKE_WIDTH_720P,
@@ -30,10 +32,12 @@ from .masks import (
     mask_seed,
 )
 from .methods import MULTI_REFERENCE, Method, MethodOutput, resolve_methods
-from .metrics import LpipsScorer, LpipsUnavailable, load_lpips, psnr, ssim
+from .metrics import LpipsScorer, LpipsUnavailable, leak, load_lpips, psnr, ssim
 from .pairs import Pair, PairExif, group_value, pair_mask, stroke_width_px
+from .removal import PROTOCOL_TEXT, PROTOCOLS, REMOVAL_PROTOCOLS, ProtocolSkip, RemovalCase, make_case
 from .tables import (
     EvalRow,
+    fmt_number,
     summary_markdown,
     sweep_markdown,
     sweep_table,
@@ -70,11 +74,16 @@ def _error_text(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {exc}".replace("\n", " ")
 
 
-def _run_method(method: Method, pair: Pair, hole: np.ndarray, refs: Sequence[int]) -> MethodOutput:
-    """``method`` on ``pair`` offered the references ``refs`` (0-based indices)."""
+def _run_method(
+    method: Method, pair: Pair, hole: np.ndarray, refs: Sequence[int], blank: bool = True
+) -> MethodOutput:
+    """``method`` on ``pair`` offered the references ``refs`` (0-based indices); the target's hole
+    zeroed when ``blank`` (the restoration protocol: it shows the truth), else as it is (the
+    removal protocols: it shows the object)."""
     target = pair.target
     masked = target.copy()
-    masked[hole] = 0
+    if blank:
+        masked[hole] = 0
     exif = PairExif(pair.exif.target, tuple(pair.exif.sources[k] for k in refs))
     out = method(masked, hole.copy(), [pair.sources[k].copy() for k in refs], exif)
     if not isinstance(out, MethodOutput):
@@ -103,10 +112,13 @@ def _evaluate_pair(
     lpips: _Lpips,
     progress: Callable[[EvalRow], None],
     modes: Sequence[str] = REFERENCE_MODES,
+    case: RemovalCase | None = None,
 ) -> list[tuple[EvalRow, np.ndarray | None]]:
     """Run and score every method on ``pair`` with ``hole`` (on a multi-reference set, with the
     references ``modes`` asks for: see :func:`reference_runs`); each row with the composited
-    output (None when the method failed)."""
+    output (None when the method failed). With a removal ``case`` (whose ``pair`` this is) the
+    target is not blanked, scores are against ``case.truth`` and the leak is measured."""
+    truth = pair.target if case is None else case.truth
     results = []
     ratio = float(hole.mask.mean())
     runs = [
@@ -119,17 +131,22 @@ def _evaluate_pair(
         image = None
         t0 = time.perf_counter()
         try:
-            out = _run_method(method, pair, hole.mask, refs)
+            out = _run_method(method, pair, hole.mask, refs, blank=case is None)
             row.time_s = time.perf_counter() - t0
             image = np.where(hole.mask[..., None], out.image, pair.target)
             row.timings, row.info = dict(out.timings), dict(out.info)
-            row.psnr, row.ssim = psnr(image, pair.target), ssim(image, pair.target)
-            row.psnr_hole = psnr(image, pair.target, hole.mask)
-            row.ssim_hole = ssim(image, pair.target, hole.mask)
+            row.psnr, row.ssim = psnr(image, truth), ssim(image, truth)
+            row.psnr_hole = psnr(image, truth, hole.mask)
+            row.ssim_hole = ssim(image, truth, hole.mask)
+            if case is not None:
+                found = leak(image, truth, case.objects, hole.mask)
+                row.leak, row.leaked_px = found.fraction, found.leaked
+                row.distinguishable_px = found.distinguishable
+                row.leak_all = leak(image, truth, [*case.objects, *case.extra_objects], hole.mask).fraction
             row.lpips_status = lpips.status
             if lpips.scorer is not None:
                 try:
-                    row.lpips = lpips.scorer(image, pair.target)
+                    row.lpips = lpips.scorer(image, truth)
                 except Exception as exc:  # a broken LPIPS model must not lose the other scores
                     row.lpips_status = f"failed: {_error_text(exc)}"
         except Exception as exc:  # the protocol records a failing method and goes on
@@ -164,6 +181,8 @@ class _Progress:
         head = f"[{self.done}/{self.total}] {row.pair} {row.method} (hole {row.hole_ratio:.1%})"
         if row.ok:
             tail = f"psnr_hole={row.psnr_hole:.2f} ssim_hole={row.ssim_hole:.3f} {row.time_s:.2f}s"
+            if row.distinguishable_px is not None:
+                tail += f" leak={fmt_number(row.leak, 3)} (all {fmt_number(row.leak_all, 3)})"
         else:
             tail = f"FAILED {row.error}"
         print(f"{head}: {tail}", file=sys.stderr, flush=True)
@@ -185,9 +204,14 @@ def run_eval(
     lpips_model: str | Path | None = None,
     contact_sheets: bool = True,
     references: Sequence[str] = REFERENCE_MODES,
+    protocol: str = "restoration",
 ) -> list[EvalRow]:
     """Evaluate ``methods`` (registry names, a name -> method mapping, or None for all registered)
     on ``pairs`` and write the results to ``out_dir`` (see the module docstring).
+
+    ``protocol``: ``restoration`` (a brush-stroke hole in the background, blanked) or one of the
+    object-removal protocols ``static`` / ``strangers`` (:mod:`.removal`; see
+    :func:`run_removal_eval`).
 
     Masks: seeded by (pair id, ``seed``); mean brush width ``stroke_width_720p`` px at a 720-px
     short side (default 150), scaled to each image; hole area in ``area_range``. ``by`` names a
@@ -196,6 +220,20 @@ def run_eval(
     :func:`reference_runs`). Returns the rows of results.csv."""
     methods = methods if isinstance(methods, Mapping) else resolve_methods(methods)
     width_720p = DEFAULT_STROKE_WIDTH_720P if stroke_width_720p is None else float(stroke_width_720p)
+    if protocol != "restoration":
+        return run_removal_eval(
+            pairs,
+            methods,
+            out_dir,
+            protocol,
+            seed,
+            width_720p,
+            by,
+            area_range=area_range,
+            lpips_model=lpips_model,
+            contact_sheets=contact_sheets,
+            references=references,
+        )
     out = Path(out_dir)
     (out / "masks").mkdir(parents=True, exist_ok=True)
     lpips = _Lpips.load(lpips_model)
@@ -224,6 +262,77 @@ def run_eval(
         "stroke_width_720p": width_720p,
         "area_range": area_range,
         "lpips": lpips.description,
+    }
+    names = list(dict.fromkeys(r.method for r in rows))
+    (out / "summary.md").write_text(summary_markdown(rows, names, settings, by))
+    return rows
+
+
+def run_removal_eval(
+    pairs: Sequence[Pair],
+    methods: Mapping[str, Method],
+    out_dir: str | Path,
+    protocol: str,
+    seed: int = 0,
+    stroke_width_720p: float = DEFAULT_STROKE_WIDTH_720P,
+    by: str | None = None,
+    *,
+    area_range: tuple[float, float] = DEFAULT_AREA_RANGE,
+    lpips_model: str | Path | None = None,
+    contact_sheets: bool = True,
+    references: Sequence[str] = REFERENCE_MODES,
+) -> list[EvalRow]:
+    """An object-removal protocol (``static`` or ``strangers``, :mod:`.removal`): each pair gets
+    its case (objects drawn into the target and the references; pairs the protocol cannot use are
+    skipped with the reason), every method fills the target *as it shows the object* (not blanked),
+    and is scored against the clean target, with the leak (:func:`.metrics.leak`).
+
+    Writes what :func:`run_eval` writes, results.csv with the leak columns, and ``cases.json``
+    (how each case was made: placement, depths, coverage, mappings)."""
+    if protocol not in REMOVAL_PROTOCOLS:
+        raise ValueError(f"unknown protocol {protocol!r}; expected one of {', '.join(PROTOCOLS)}")
+    out = Path(out_dir)
+    (out / "masks").mkdir(parents=True, exist_ok=True)
+    lpips = _Lpips.load(lpips_model)
+    cases, skipped = [], {}
+    for pair in pairs:
+        try:
+            cases.append(make_case(protocol, pair, seed, stroke_width_720p, area_range))
+        except ProtocolSkip as exc:
+            skipped[pair.id] = str(exc)
+            print(f"{pair.id}: skipped by the {protocol} protocol: {exc}", file=sys.stderr, flush=True)
+    progress = _Progress(
+        sum(
+            len(reference_runs(len(c.pair.sources), m in MULTI_REFERENCE, references))
+            for c in cases
+            for m in methods
+        )
+    )
+    rows: list[EvalRow] = []
+    for case in cases:
+        pair = case.pair
+        group = group_value(pair.meta, by) if by else ""
+        hole = _Hole(case.hole, case.stroke_width_720p, case.stroke_width_px, group)
+        cv2.imwrite(str(out / "masks" / f"{pair.id}.png"), hole.mask.astype(np.uint8) * 255)
+        results = _evaluate_pair(pair, hole, methods, lpips, progress, references, case)
+        rows.extend(r for r, _ in results)
+        if contact_sheets:
+            write_removal_contact_sheet(out / f"contact_{pair.id}.jpg", case, results)
+    write_results_csv(out / "results.csv", rows, by, leak=True)
+    write_timings_csv(out / "timings.csv", rows)
+    (out / "cases.json").write_text(
+        json.dumps(
+            {c.pair.id: c.info for c in cases} | {k: {"skipped": v} for k, v in skipped.items()}, indent=1
+        )
+    )
+    settings = {
+        "protocol": protocol,
+        "protocol_text": PROTOCOL_TEXT[protocol],
+        "pairs": len(cases),
+        "seed": seed,
+        "lpips": lpips.description,
+        "skipped": skipped,
+        "revealed": {c.pair.id: c.info["hole_revealed"] for c in cases},
     }
     names = list(dict.fromkeys(r.method for r in rows))
     (out / "summary.md").write_text(summary_markdown(rows, names, settings, by))

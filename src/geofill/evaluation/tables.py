@@ -33,6 +33,10 @@ class EvalRow:
     ssim_hole: float | None = None
     lpips: float | None = None
     lpips_status: str = ""
+    leak: float | None = None  # removal protocols: see metrics.leak
+    leaked_px: int | None = None
+    distinguishable_px: int | None = None
+    leak_all: float | None = None
     time_s: float | None = None
     error: str = ""
     group: str = ""
@@ -77,12 +81,18 @@ def write_csv(path: Path, fields: Sequence[str], records: Sequence[Mapping[str, 
         writer.writerows({k: _cell(v) for k, v in r.items()} for r in records)
 
 
-def write_results_csv(path: Path, rows: Sequence[EvalRow], by: str | None) -> None:
-    """One line per pair x method; a ``by`` column with the group when grouping."""
-    fields = [*_CSV_FIELDS, *([by] if by else []), "info"]
+#: Extra results.csv columns of the removal protocols.
+LEAK_FIELDS = ("leak", "leaked_px", "distinguishable_px", "leak_all")
+
+
+def write_results_csv(path: Path, rows: Sequence[EvalRow], by: str | None, leak: bool = False) -> None:
+    """One line per pair x method; a ``by`` column with the group when grouping; with ``leak``
+    (the removal protocols) the :data:`LEAK_FIELDS` after the scores."""
+    scores = (*_CSV_FIELDS, *(LEAK_FIELDS if leak else ()))
+    fields = [*scores, *([by] if by else []), "info"]
     records = []
     for row in rows:
-        record = {name: getattr(row, name) for name in _CSV_FIELDS}
+        record = {name: getattr(row, name) for name in scores}
         if by:
             record[by] = row.group
         record["info"] = json.dumps(row.info, sort_keys=True) if row.info else ""
@@ -145,28 +155,42 @@ def wins(rows: Sequence[EvalRow], method: str, baseline: str, metric: str = "psn
 def summary_markdown(
     rows: Sequence[EvalRow], methods: Sequence[str], settings: Mapping[str, Any], by: str | None
 ) -> str:
-    """The summary.md text: settings, mean/median scores, wins vs. baselines, grouping, failures."""
+    """The summary.md text: settings, mean/median scores, wins vs. baselines, grouping, failures;
+    for a removal protocol (``settings['protocol']``) also the leak, per set, and the sets skipped."""
     hole_ratios = {r.pair: r.hole_ratio for r in rows}
-    lo, hi = settings["area_range"]
+    removal = settings.get("protocol", "restoration") != "restoration"
+    mean_ratio = fmt_number(mean_or_none(list(hole_ratios.values())), 3)
+    if removal:
+        head = [
+            f"- protocol: {settings['protocol']}: {settings['protocol_text']}",
+            f"- sets: {settings['pairs']}, seed {settings['seed']}, mean hole ratio {mean_ratio}",
+            f"- leak: {LEAK_TEXT}",
+        ]
+    else:
+        lo, hi = settings["area_range"]
+        head = [
+            f"- pairs: {settings['pairs']}, mask seed {settings['seed']}, mean brush width "
+            f"{settings['stroke_width_720p']:g} px at a 720-px short side (scaled per image), "
+            f"hole area window {lo:.0%}-{hi:.0%}, mean hole ratio {mean_ratio}"
+        ]
     lines = [
         "# geofill evaluation",
         "",
-        f"- pairs: {settings['pairs']}, mask seed {settings['seed']}, mean brush width "
-        f"{settings['stroke_width_720p']:g} px at a 720-px short side (scaled per image), "
-        f"hole area window {lo:.0%}-{hi:.0%}, mean hole ratio "
-        f"{fmt_number(mean_or_none(list(hole_ratios.values())), 3)}",
+        *head,
         f"- LPIPS: {settings['lpips']}",
         "- whole-image scores count every pixel (papers' convention); hole scores count hole pixels only",
         "",
         "## Scores (mean / median over pairs the method ran on)",
         "",
     ]
-    header = ["method", "ok", "failed", *(label for _, label, _ in _METRICS), "LPIPS", "median time (s)"]
+    leaks = (("leak", "leak", 3), ("leak_all", "leak (all)", 3))
+    metrics = (*_METRICS, ("lpips", "LPIPS", 4), *(leaks if removal else ()))
+    header = ["method", "ok", "failed", *(label for _, label, _ in metrics), "median time (s)"]
     body = []
     for m in methods:
         mine = [r for r in rows if r.method == m]
         cells = [m, str(sum(r.ok for r in mine)), str(sum(not r.ok for r in mine))]
-        for metric, _, digits in (*_METRICS, ("lpips", "LPIPS", 4)):
+        for metric, _, digits in metrics:
             values = ok_values(mine, metric)
             median = float(np.median(values)) if values else None
             cells.append(f"{fmt_number(mean_or_none(values), digits)} / {fmt_number(median, digits)}")
@@ -204,10 +228,53 @@ def summary_markdown(
         lines += _md_table([by, "method", "n ok", *(f"{label} (mean)" for _, label, _ in _METRICS)], body)
 
     lines += multi_reference_markdown(rows, methods)
+    if removal:
+        lines += per_set_markdown(rows, methods, settings.get("revealed", {}))
+        lines += ["", "## Sets skipped by the protocol", ""]
+        lines += [f"- {pid}: {why}" for pid, why in settings.get("skipped", {}).items()] or ["none"]
     failures = [r for r in rows if not r.ok]
     lines += ["", "## Failures", ""]
     lines += [f"- {r.pair} / {r.method}: {r.error}" for r in failures] or ["none"]
     return "\n".join(lines) + "\n"
+
+
+#: What the summary says the leak is (metrics.leak).
+LEAK_TEXT = (
+    "fraction of the hole pixels where an object is distinguishable from the truth (RGB distance "
+    "> 30) at which the output is nearer to the object than half its distance to the truth; objects: "
+    "static, the object as drawn in the target; strangers, each reference's strangers mapped into the "
+    "target. leak (all) adds, static: each reference's object mapped into the target as if it were "
+    "background; strangers: the target's own cutout. A method that cannot copy (opencv_inpaint) "
+    "shows the chance level"
+)
+
+
+def per_set_markdown(
+    rows: Sequence[EvalRow], methods: Sequence[str], revealed: Mapping[str, float]
+) -> list[str]:
+    """Per set and method: the fraction of the hole's background the references see unhidden
+    (``revealed``: what a perfect copy could recover), hole PSNR, leak (leaked / distinguishable
+    pixels) and leak (all)."""
+    order = {m: i for i, m in enumerate(methods)}
+    body = []
+    for r in sorted(rows, key=lambda r: (r.pair, order.get(r.method, len(order)))):
+        seen = fmt_number(revealed.get(r.pair), 3)
+        if not r.ok:
+            body.append([r.pair, seen, r.method, "FAILED", "-", "-", "-"])
+            continue
+        body.append(
+            [
+                r.pair,
+                seen,
+                r.method,
+                fmt_number(r.psnr_hole, 2),
+                fmt_number(r.leak, 3),
+                f"{r.leaked_px}/{r.distinguishable_px}",
+                fmt_number(r.leak_all, 3),
+            ]
+        )
+    header = ["set", "revealed", "method", "PSNR hole", "leak", "leaked / distinguishable px", "leak (all)"]
+    return ["", "## Per set", "", *_md_table(header, body)]
 
 
 def multi_reference_markdown(rows: Sequence[EvalRow], methods: Sequence[str]) -> list[str]:
