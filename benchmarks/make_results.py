@@ -68,6 +68,57 @@ SECTIONS = [
         "summary.md",
     ),
     Section(
+        "removal_static",
+        "Object removal, a static object (`geofill eval --protocol static`)",
+        "A planar photo cutout placed in front of the scene and drawn, with the GT poses, into the target "
+        "and every reference (the 3 DEV multi-reference sets with GT poses and 3 synthetic view sets); the "
+        "methods get the target showing it. `leak`: the share of the hole's distinguishable pixels where "
+        "the output reproduces the object. `geofill_object_allowed` is the fill before the screen stage.",
+        [
+            PY,
+            "-m",
+            "geofill.cli",
+            "eval",
+            "--protocol",
+            "static",
+            "--references",
+            "all",
+            "--out",
+            "{out}",
+            "--pairs",
+            str(MULTIVIEW / "dev_mv_instantngp_fox_lower"),
+            "--pairs",
+            str(MULTIVIEW / "dev_mv_instantngp_fox_upper"),
+            "--pairs",
+            str(MULTIVIEW / "dev_mv_slambook_livingroom"),
+            "--pairs",
+            "synthetic-views:3",
+            "--methods",
+            "opencv_inpaint,homography,geofill,geofill_object_allowed",
+        ],
+        "summary.md",
+    ),
+    Section(
+        "removal_strangers",
+        "Object removal, strangers in the references (`geofill eval --protocol strangers`)",
+        "Cutouts pasted into the references over 30-60 % of where the hole's background appears in them; "
+        "the target's hole shows another cutout. `geofill_outliers` refuses a reference that disagrees with "
+        "the others (`fusion.outlier_distance=40`, off by default).",
+        _eval(
+            "{out}",
+            "--protocol",
+            "strangers",
+            "--references",
+            "all",
+            "--pairs",
+            "synthetic-views:3",
+            "--methods",
+            "opencv_inpaint,homography,geofill,geofill_outliers",
+            pairs=MULTIVIEW,
+        ),
+        "summary.md",
+    ),
+    Section(
         "shared_focal",
         "One focal for all references (`benchmarks/studies/shared_focal.py`)",
         "The multi-reference sets with a true K: the target focal's error per pair (each reference alone) "
