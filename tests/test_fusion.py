@@ -11,7 +11,7 @@ import pytest
 
 from geofill.composite.inpaint import mask_window
 from geofill.config import FillConfig
-from geofill.fuse import Fusion, _known_ring, _outliers, fuse_references, gaussian_blur
+from geofill.fuse import Fusion, _known_ring, fuse_references, gaussian_blur
 from geofill.render import RenderResult
 
 
@@ -84,37 +84,3 @@ def test_gaussian_blur_equals_opencvs_to_float_rounding(sigma):
     out = gaussian_blur(image, sigma)
     assert out.dtype == np.float32 and out.shape == image.shape
     np.testing.assert_allclose(out, ref, rtol=0, atol=1e-5 * ref.max())
-
-
-def _three_renders():
-    h, w = 60, 80
-    hole = np.zeros((h, w), bool)
-    hole[10:50, 10:70] = True
-    target = np.full((h, w, 3), 100, np.uint8)
-    images = np.full((3, h, w, 3), 100.0, np.float32)
-    images[1, 20:40, 30:50] = [220.0, 30.0, 30.0]  # a stranger in reference 2 only
-    alphas = np.zeros((3, h, w), bool)
-    alphas[:, 5:55, 5:75] = True
-    return target, hole, images, alphas
-
-
-def test_a_stranger_outvoted_by_two_references_is_refused():
-    target, hole, images, alphas = _three_renders()
-    cfg = FillConfig().updated({"fusion.outlier_distance": 40.0, "fusion.outlier_sigma_px": 1.0})
-    out = _outliers(images, alphas, target, hole, cfg.fusion, px=1.0)
-    assert not out[0].any() and not out[2].any()
-    # The stranger's square, less the rim the smoothing (sigma 1 px) spreads below the threshold.
-    assert out[1, 22:38, 32:48].all() and not out[1, :18].any() and not out[1, :, :28].any()
-
-
-def test_of_two_disagreeing_renders_the_one_unlike_the_surroundings_is_refused():
-    target, hole, images, alphas = _three_renders()
-    alphas[2] = False  # two references: the surroundings (grey 100) side with reference 1
-    cfg = FillConfig().updated({"fusion.outlier_distance": 40.0, "fusion.outlier_sigma_px": 1.0})
-    out = _outliers(images, alphas, target, hole, cfg.fusion, px=1.0)
-    assert not out[0].any() and not out[2].any()
-    assert out[1, 20:40, 30:50].all() and out[1].sum() == 20 * 20  # the square exactly
-
-
-def test_outliers_off_by_default_leave_the_fill_unchanged():
-    assert FillConfig().fusion.outlier_distance == 0.0

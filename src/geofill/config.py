@@ -668,20 +668,6 @@ class FusionConfig:
         "Where three or more references cover a pixel, a reference's score also halves at this distance "
         "(0-255) from their per-pixel median: a misaligned reference disagrees with the others.",
     )
-    outlier_distance: Annotated[float, Range(0, 255)] = setting(
-        0.0,
-        "A reference's render is not used where, smoothed over ``outlier_sigma_px``, it differs by more than "
-        "this (mean absolute difference, 0-255) from the other references covering the pixel: with three or "
-        "more, from their median while they agree; with two, the one farther from the colours of the hole's "
-        "surroundings (meant for a passer-by in one reference; try 40). Off (0) by default: at 40 it cost "
-        "restoration 0.56 dB mean hole PSNR on the 7 multi-reference DEV sets (3 seeds; 0.27 dB with the "
-        "three-or-more rule alone), refusing misaligned but correct renders.",
-    )
-    outlier_sigma_px: Annotated[float, Range(0.5, 1000)] = setting(
-        4.0,
-        "Smoothing (Gaussian sigma, px) before references are compared for ``outlier_distance``: "
-        "misalignment and texture should not count, whole objects should.",
-    )
     edge_distance_px: Annotated[float, Range(0, 1000)] = setting(
         16.0,
         "Distance (px) from a mesh cut or the render's border below which a pixel's score falls.",

@@ -58,9 +58,6 @@ class Fusion:
     method: str
     scores: tuple[float, ...] = ()  # per used reference (in the order given): mean score where it supplies
     window: tuple[slice, slice] = (slice(None), slice(None))
-    #: HxW bool (or None): hole pixels where a reference's render was not used because it disagreed
-    #: with the others (``fusion.outlier_distance``).
-    refused: np.ndarray | None = None
 
     def supplied_fractions(self, hole: np.ndarray, n_references: int) -> list[float]:
         """Fraction of the hole each reference (in the order given) supplies."""
@@ -111,12 +108,6 @@ def fuse_references(
     alphas = np.stack([r.screened.alpha[rows, cols] for r in refs])
     images = np.stack([r.screened.image[rows, cols] for r in refs]).astype(np.float32)
     ring = _known_ring(hole_w, config_px(cfg.refine.band_px, hole.shape))
-    refused = None
-    if fc.outlier_distance > 0:
-        outliers = _outliers(images, alphas, target[rows, cols], hole_w, fc, config_px(1.0, hole.shape))
-        alphas &= ~outliers
-        refused = np.zeros(hole.shape, bool)
-        refused[rows, cols] = outliers.any(axis=0) & hole_w
     scores = np.stack(
         [
             reference_score(r, images[k], target[rows, cols], ring, rows, cols, hole.shape, fc)
@@ -147,8 +138,7 @@ def fuse_references(
         float(scores[k][supplies[k]].mean()) if supplies[k].any() else 0.0
         for k in sorted(range(len(refs)), key=lambda k: index[k])
     )
-    method = f"{fc.seams} of {len(refs)} references"
-    return Fusion(image, alpha, labels, method, mean_scores, (rows, cols), refused)
+    return Fusion(image, alpha, labels, f"{fc.seams} of {len(refs)} references", mean_scores, (rows, cols))
 
 
 def reference_score(
@@ -217,45 +207,6 @@ def gaussian_blur(image: np.ndarray, sigma: float) -> np.ndarray:
         return cv2.GaussianBlur(image, (0, 0), sigma)
     k = cv2.getGaussianKernel(taps, sigma, cv2.CV_32F)
     return cv2.filter2D(image, -1, k @ k.T, borderType=cv2.BORDER_REFLECT_101)
-
-
-def _outliers(
-    images: np.ndarray, alphas: np.ndarray, target: np.ndarray, hole: np.ndarray, cfg: FusionConfig, px: float
-) -> np.ndarray:
-    """(K, H, W) bool: where reference k's render, smoothed, disagrees with the others covering the
-    pixel by more than ``cfg.outlier_distance`` (see :class:`geofill.config.FusionConfig`)."""
-    sigma = cfg.outlier_sigma_px * px
-    weight = np.stack([gaussian_blur(a.astype(np.float32), sigma) for a in alphas])
-    smooth = np.stack([gaussian_blur(im * a[..., None], sigma) for im, a in zip(images, alphas, strict=True)])
-    smooth /= np.maximum(weight, 1e-6)[..., None]
-    count = alphas.sum(axis=0)
-    out = np.zeros(alphas.shape, bool)
-    many = count >= 3
-    if many.any():
-        stack = np.where(alphas[:, many, None], smooth[:, many], np.nan)
-        dist = np.abs(stack - np.nanmedian(stack, axis=0)[None]).mean(axis=-1)  # (K, N)
-        typical = np.nanmedian(dist, axis=0)
-        out[:, many] = np.nan_to_num(dist, nan=0.0) > np.maximum(cfg.outlier_distance, 2.0 * typical)
-    two = np.flatnonzero(count == 2)
-    if two.size:
-        # Two renders disagree: the one farther from the surroundings' colours (the known pixels
-        # around the hole, averaged with a wide Gaussian) shows what the scene does not continue.
-        k, n = alphas.shape[0], two.size
-        flat_alpha, flat_smooth = alphas.reshape(k, -1)[:, two], smooth.reshape(k, -1, 3)[:, two]
-        first, second = np.argsort(~flat_alpha, axis=0, kind="stable")[:2]  # the two covering
-        cols = np.arange(n)
-        sa, sb = flat_smooth[first, cols], flat_smooth[second, cols]
-        known = (~hole).astype(np.float32)
-        wide = 8.0 * sigma
-        around = gaussian_blur(target.astype(np.float32) * known[..., None], wide)
-        around = (around / np.maximum(gaussian_blur(known, wide), 1e-6)[..., None]).reshape(-1, 3)[two]
-        da, db = np.abs(sa - around).mean(axis=-1), np.abs(sb - around).mean(axis=-1)
-        decided = (np.abs(sa - sb).mean(axis=-1) > cfg.outlier_distance) & (
-            np.abs(da - db) > 0.5 * cfg.outlier_distance
-        )
-        worse = np.where(da > db, first, second)
-        out.reshape(k, -1)[worse[decided], two[decided]] = True
-    return out & alphas
 
 
 def _consensus(images: np.ndarray, alphas: np.ndarray, scale: float) -> np.ndarray:

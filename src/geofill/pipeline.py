@@ -146,8 +146,7 @@ class FillReport:
     supplied_fraction: list[float] = field(default_factory=list)  # per reference, of the hole
     painted_fraction: float = 1.0  # of the hole, by single-image inpainting
     #: Of the hole, where a reference's render was not copied: ``removed_object`` (it showed what the
-    #: hole shows, the thing removed), ``masked`` (it came from pixels the user masked),
-    #: ``disagreement`` (the references disagreed: a passer-by in one of them).
+    #: hole shows, the thing removed), ``masked`` (it came from pixels the user masked).
     refused_fraction: dict[str, float] = field(default_factory=dict)
     fusion: dict[str, Any] = field(default_factory=dict)
     inpaint_method: str = ""
@@ -166,7 +165,6 @@ class FillReport:
         why = {
             "removed_object": "the references showed the removed object",
             "masked": "it was masked in the references",
-            "disagreement": "the references disagreed there (one showed something the others do not)",
         }
         parts = [
             f"{100 * f:.0f}% of the hole was not copied because {why[k]}"
@@ -466,19 +464,14 @@ def composite(ctx: FillContext, fusion: Fusion) -> np.ndarray:
     return merge_fill(ctx.target, ctx.hole, fusion.image, fusion.alpha, ctx.inpainter, feather)
 
 
-def _refused_fractions(hole: np.ndarray, used: list[ReferenceArtifacts], fusion: Fusion) -> dict[str, float]:
+def _refused_fractions(hole: np.ndarray, used: list[ReferenceArtifacts]) -> dict[str, float]:
     """Of the hole, where any reference's render was refused, per reason."""
-    reasons = {
-        "removed_object": [r.screened.refused_object for r in used],
-        "masked": [r.screened.refused_masked for r in used],
-        "disagreement": [fusion.refused],
-    }
-    n = max(int(hole.sum()), 1)
-    return {
-        key: float(np.count_nonzero(np.logical_or.reduce(found) & hole)) / n
-        for key, masks in reasons.items()
-        if (found := [m for m in masks if m is not None])
-    }
+    out = {}
+    for key, name in (("removed_object", "refused_object"), ("masked", "refused_masked")):
+        masks = [getattr(r.screened, name) for r in used if getattr(r.screened, name) is not None]
+        if masks:
+            out[key] = float(np.count_nonzero(np.logical_or.reduce(masks) & hole)) / max(int(hole.sum()), 1)
+    return out
 
 
 def _report(ctx: FillContext, refs: list[ReferenceArtifacts], fusion: Fusion, prog: Progress) -> FillReport:
@@ -502,7 +495,7 @@ def _report(ctx: FillContext, refs: list[ReferenceArtifacts], fusion: Fusion, pr
         references=[r.report() for r in refs],
         supplied_fraction=supplied,
         painted_fraction=1.0 - float(sum(supplied)),
-        refused_fraction=_refused_fractions(ctx.hole, used, fusion),
+        refused_fraction=_refused_fractions(ctx.hole, used),
         fusion=fusion.report(),
         inpaint_method=ctx.inpainter.description,
         depth_choice=ctx.depth_choice.reason,
