@@ -867,9 +867,8 @@ PRESETS: dict[str, dict[str, Any]] = {
     "telea": {"inpaint.method": "telea"},
     "patchmatch": {"inpaint.method": "patchmatch"},
     # Object removal: reference content that shows what the hole shows copied like any other (the
-    # fill before the screen stage); references that disagree refused (``fusion.outlier_distance``).
+    # fill before the screen stage).
     "object_allowed": {"screen.removed_object": "allow"},
-    "outliers": {"fusion.outlier_distance": 40.0},
 }
 
 
