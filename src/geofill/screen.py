@@ -28,13 +28,14 @@ import cv2
 import numpy as np
 
 from .composite.inpaint import mask_window
-from .config import FillConfig
+from .config import FillConfig, ScreenConfig
 from .focal import FocalEstimate
 from .match import Matches
 from .match.features import Features, detect_sift, mutual_ratio_matches
 from .pose import PoseEstimate
 from .prepare import WorkingViews
 from .refine import RefinedRender
+from .render import RenderResult
 from .utils.resolution import config_px, resize_long
 from .utils.rotations import skew
 
@@ -144,7 +145,7 @@ def screen_render(
     return ScreenedRender(image, alpha, refused_object, refused_masked, object_matches, located, n_hole)
 
 
-def _sampled(mask: np.ndarray, field: Any, rows: slice, cols: slice) -> np.ndarray:
+def _sampled(mask: np.ndarray, field: RenderResult, rows: slice, cols: slice) -> np.ndarray:
     """``mask`` (source pixels, input size) read at the correspondence field's window (nearest)."""
     return (
         cv2.remap(
@@ -215,7 +216,7 @@ def seen_again(
     hole: np.ndarray,
     covered: np.ndarray,
     shape: tuple[int, ...],
-    sc: Any,
+    sc: ScreenConfig,
 ) -> np.ndarray:
     """Covered hole pixels (of a window) where the render's patch equals the hole's own content: in
     regions that reach more than a patch's width into the hole, on textured content only."""
