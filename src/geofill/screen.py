@@ -121,7 +121,7 @@ def screen_render(
     object_matches, located = 0, False
     if shown is not None:
         sc = cfg.screen
-        in_source, object_matches = locate_object(shown, hole, source, views, matches, focal, pose, cfg)
+        in_source, object_matches = locate_object(shown, source, views, matches, focal, pose, cfg)
         located = in_source is not None
         refused_object = np.zeros(hole.shape, bool)
         if located:
@@ -158,7 +158,6 @@ def _sampled(mask: np.ndarray, field: RenderResult, rows: slice, cols: slice) ->
 
 def locate_object(
     shown: np.ndarray,
-    hole: np.ndarray,
     source: np.ndarray,
     views: WorkingViews,
     matches: Matches,
