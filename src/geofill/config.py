@@ -607,10 +607,12 @@ class RefineConfig:
 class InpaintConfig:
     """Single-image inpainting for what the source cannot supply."""
 
-    method: Literal["telea", "ns", "patchmatch", "lama", "auto"] = setting(
+    method: Literal["telea", "ns", "exemplar", "patchmatch", "lama", "auto"] = setting(
         "auto",
-        '"telea"/"ns": OpenCV (no weights); "lama": LaMa through ONNX Runtime; "auto": LaMa when its model '
-        "resolves (path, $GEOFILL_LAMA_MODEL, cache, hub), else Telea (the reason is reported).",
+        '"telea"/"ns": OpenCV diffusion (no weights, fastest, smears texture); "exemplar": multi-scale '
+        'exemplar-based completion (no weights, continues texture); "patchmatch": PyPatchMatch (the '
+        '"patchmatch" extra); "lama": LaMa through ONNX Runtime; "auto": LaMa when its model resolves '
+        "(path, $GEOFILL_LAMA_MODEL, cache, hub), else exemplar (the reason is reported).",
     )
     radius_px: Annotated[float, Range(0, 100, lo_open=True)] = setting(
         5.0,
@@ -618,8 +620,14 @@ class InpaintConfig:
     )
     patch_radius_px: Annotated[int, Range(1, 15)] = setting(
         3,
-        '"patchmatch": radius (px) of the compared patches, (2r + 1)^2 pixels (PyPatchMatch\'s examples use '
-        "3; larger follows larger structures, much slower).",
+        '"exemplar"/"patchmatch": radius (px) of the compared patches, (2r + 1)^2 pixels (PyPatchMatch\'s '
+        "examples use 3; larger follows larger structures, much slower).",
+    )
+    structure_sigma_px: Annotated[float, Range(0, 64)] = setting(
+        4.0,
+        '"exemplar": Gaussian scale (px) below which the fill is the exemplars\' and above which it is '
+        "Telea's diffusion (large-scale structure from diffusion, texture from exemplars); 0: exemplars only "
+        "(most texture, lower hole PSNR; measured in docs/architecture.md).",
     )
     lama_model: str | None = setting(
         None,
@@ -863,8 +871,10 @@ PRESETS: dict[str, dict[str, Any]] = {
     # Several references: graph-cut seams between the per-pixel winners, or a score-weighted average.
     "graphcut": {"fusion.seams": "graphcut"},
     "blend": {"fusion.seams": "blend"},
-    # Single-image inpainting of what the references do not cover: Telea or PatchMatch.
+    # Single-image inpainting of what the references do not cover: Telea (fast, smears texture),
+    # PatchMatch, or exemplars only (no diffused structure).
     "telea": {"inpaint.method": "telea"},
+    "exemplar_only": {"inpaint.method": "exemplar", "inpaint.structure_sigma_px": 0.0},
     "patchmatch": {"inpaint.method": "patchmatch"},
     # Object removal: reference content that shows what the hole shows copied like any other (the
     # fill before the screen stage).

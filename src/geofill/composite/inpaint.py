@@ -18,7 +18,7 @@ into the wrong place (a second fox head, window frames in a wall), a worse failu
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -100,9 +100,17 @@ def _opencv(method: str, radius_px: float) -> Inpainter:
     return Inpainter(method, method, run, context_px=int(np.ceil(radius_px)) + 2)
 
 
-#: Context kept around the region's bounding box for PatchMatch, as a fraction of its longer side
-#: (at least 32 px): the patches it copies come from there, and a window keeps 4K frames quick.
+#: Context kept around the region's bounding box for the exemplar painters, as a fraction of its
+#: longer side (at least 32 px): the patches they copy come from there, and a window keeps 4K quick.
 _PATCHMATCH_CONTEXT = 1.0
+
+
+def _context(region: np.ndarray) -> tuple[slice, slice]:
+    """The window exemplar painters copy from: the region's bounding box grown by
+    ``_PATCHMATCH_CONTEXT`` times its longer side (at least 32 px)."""
+    ys, xs = np.nonzero(region.any(axis=1))[0], np.nonzero(region.any(axis=0))[0]
+    pad = max(32, round(_PATCHMATCH_CONTEXT * max(ys[-1] - ys[0] + 1, xs[-1] - xs[0] + 1)))
+    return mask_window(region, pad)
 
 
 def _patchmatch(patch_radius_px: int) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
@@ -111,19 +119,29 @@ def _patchmatch(patch_radius_px: int) -> Callable[[np.ndarray, np.ndarray], np.n
         raise MissingExtraError("PatchMatch inpainting: PyPatchMatch is installed without its native library")
 
     def run(image: np.ndarray, region: np.ndarray) -> np.ndarray:
-        ys, xs = np.nonzero(region)
-        y0, y1, x0, x1 = int(ys.min()), int(ys.max()) + 1, int(xs.min()), int(xs.max()) + 1
-        pad = max(32, round(_PATCHMATCH_CONTEXT * max(y1 - y0, x1 - x0)))
-        y0, y1 = max(y0 - pad, 0), min(y1 + pad, region.shape[0])
-        x0, x1 = max(x0 - pad, 0), min(x1 + pad, region.shape[1])
+        rows, cols = _context(region)
         out = image.copy()
         patchmatch.set_random_seed(0)  # its search is randomised: same inputs, same bytes
-        out[y0:y1, x0:x1] = patchmatch.inpaint(
-            np.ascontiguousarray(image[y0:y1, x0:x1]), region[y0:y1, x0:x1], patch_size=patch_radius_px
+        out[rows, cols] = patchmatch.inpaint(
+            np.ascontiguousarray(image[rows, cols]), region[rows, cols], patch_size=patch_radius_px
         )
         return out
 
     return run
+
+
+def _exemplar(cfg: InpaintConfig, why: str = "") -> Inpainter:
+    from .exemplar import ExemplarSettings, complete
+
+    settings = ExemplarSettings(patch_radius=cfg.patch_radius_px, structure_sigma=cfg.structure_sigma_px)
+
+    def run(image: np.ndarray, region: np.ndarray) -> np.ndarray:
+        rows, cols = _context(region)
+        out = image.copy()
+        out[rows, cols] = complete(np.ascontiguousarray(image[rows, cols]), region[rows, cols], settings)
+        return out
+
+    return Inpainter("exemplar", f"exemplar{why}", run)
 
 
 def _lama(path: Path) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
@@ -137,17 +155,18 @@ def _lama(path: Path) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
 
 def get_inpainter(cfg: InpaintConfig, say: Callable[[str], None] | None = None) -> Inpainter:
     """The inpainter ``cfg`` asks for. ``lama``, or an explicit ``cfg.lama_model``, that cannot be
-    used is an :class:`InpaintModelError`; ``auto`` otherwise falls back to Telea and says why."""
+    used is an :class:`InpaintModelError`; ``auto`` otherwise falls back to exemplar painting and
+    says why."""
     if cfg.method in _METHODS:
         return _opencv(cfg.method, cfg.radius_px)
     if cfg.method == "patchmatch":
         return Inpainter("patchmatch", "patchmatch", _patchmatch(cfg.patch_radius_px))
+    if cfg.method == "exemplar":
+        return _exemplar(cfg)
     if not available("onnxruntime"):
         if cfg.method == "lama" or cfg.lama_model:
             require("onnxruntime", "LaMa inpainting")
-        return replace(
-            _opencv("telea", cfg.radius_px), description="telea (auto: LaMa needs onnxruntime, not installed)"
-        )
+        return _exemplar(cfg, " (auto: LaMa needs onnxruntime, not installed)")
     weights = resolve_lama_model(cfg, say)
     if isinstance(weights, WeightsUnavailable):
         problem = str(weights)
@@ -160,7 +179,7 @@ def get_inpainter(cfg: InpaintConfig, say: Callable[[str], None] | None = None) 
             )
     if cfg.method == "lama" or cfg.lama_model:
         raise InpaintModelError(problem)
-    return replace(_opencv("telea", cfg.radius_px), description=f"telea (auto: {problem})")
+    return _exemplar(cfg, f" (auto: {problem})")
 
 
 def inpaint_single(image: np.ndarray, hole: np.ndarray, cfg: InpaintConfig) -> np.ndarray:

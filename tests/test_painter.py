@@ -1,0 +1,150 @@
+"""Exemplar painting (multi-scale PatchMatch completion): it continues periodic texture and straight
+edges where diffusion smears, keeps every pixel outside the hole, and gives the same bytes every run,
+and in a reference fill it copies the render's texture into what the render leaves uncovered."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from geofill.composite import exemplar
+from geofill.composite.exemplar import ExemplarSettings, complete
+from geofill.composite.inpaint import get_inpainter
+from geofill.composite.merge import merge_fill
+from geofill.config import FillConfig, InpaintConfig
+from geofill.errors import ConfigError, InputError
+
+
+def _grad_ratio(img: np.ndarray, hole: np.ndarray, ring_px: int = 10) -> float:
+    grey = cv2.cvtColor(img, cv2.COLOR_RGB2GRAY).astype(np.float32)
+    mag = np.hypot(cv2.Sobel(grey, cv2.CV_32F, 1, 0), cv2.Sobel(grey, cv2.CV_32F, 0, 1))
+    ring = (cv2.dilate(hole.astype(np.uint8), np.ones((2 * ring_px + 1,) * 2, np.uint8)) > 0) & ~hole
+    return float(mag[hole].mean() / mag[ring].mean())
+
+
+def _checks(h: int = 160, w: int = 200, period: int = 10) -> np.ndarray:
+    """A colour pattern periodic in x and y (a blurred checkerboard with a diagonal stripe)."""
+    yy, xx = np.mgrid[0:h, 0:w]
+    board = ((xx // (period // 2) + yy // (period // 2)) % 2).astype(np.float32)
+    stripe = ((xx + yy) % period < 3).astype(np.float32)
+    img = np.stack([60 + 150 * board, 80 + 120 * stripe, 200 - 100 * board], axis=-1)
+    return cv2.GaussianBlur(img, (0, 0), 0.7).round().astype(np.uint8)
+
+
+def _disc(h: int, w: int, cy: int, cx: int, radius: int) -> np.ndarray:
+    yy, xx = np.mgrid[0:h, 0:w]
+    return (yy - cy) ** 2 + (xx - cx) ** 2 <= radius**2
+
+
+def test_periodic_texture_is_continued_where_telea_smears():
+    truth = _checks()
+    hole = _disc(*truth.shape[:2], 80, 100, 32)
+    blank = truth.copy()
+    blank[hole] = 0
+    out = complete(blank, hole)
+    telea = cv2.inpaint(blank, hole.astype(np.uint8), 5.0, cv2.INPAINT_TELEA)
+    err = np.abs(out.astype(int) - truth)[hole].mean()
+    telea_err = np.abs(telea.astype(int) - truth)[hole].mean()
+    assert _grad_ratio(truth, hole) == pytest.approx(1.0, abs=0.05)
+    assert _grad_ratio(telea, hole) < 0.5  # the smear
+    assert _grad_ratio(out, hole) == pytest.approx(1.0, abs=0.15)
+    # In phase with the truth: copies of the pattern, not a texture of the right roughness.
+    assert err < 0.35 * telea_err, (err, telea_err)
+    np.testing.assert_array_equal(out[~hole], blank[~hole])
+
+
+def test_a_straight_edge_through_the_hole_is_continued():
+    h, w = 120, 160
+    yy, xx = np.mgrid[0:h, 0:w]
+    rng = np.random.default_rng(1)
+    grain = rng.normal(0, 6, (h, w, 1))
+    edge_row = 50 + 0.25 * xx  # a slanted straight edge
+    img = np.where((yy < edge_row)[..., None], [200, 180, 150], [50, 70, 90]) + grain
+    img = np.clip(img, 0, 255).astype(np.uint8)
+    hole = np.zeros((h, w), bool)
+    hole[30:100, 60:110] = True
+    blank = img.copy()
+    blank[hole] = 0
+    out = complete(blank, hole)
+    telea = cv2.inpaint(blank, hole.astype(np.uint8), 5.0, cv2.INPAINT_TELEA)
+
+    def offsets(filled: np.ndarray) -> np.ndarray:
+        """Per column through the hole: the row where bright turns dark, minus the edge's row."""
+        cols = np.arange(62, 108, 5)
+        grey = filled[30:100, cols].astype(float).mean(axis=2)
+        return 30 + np.argmax(grey < 125, axis=0) - edge_row[0, cols]
+
+    assert np.abs(offsets(out)).max() <= 2.5, offsets(out)
+    assert np.abs(offsets(telea)).max() > 5  # diffusion bends it towards the hole's middle
+
+
+def test_same_bytes_every_run_and_with_any_number_of_threads(monkeypatch):
+    truth = _checks(140, 180)
+    hole = _disc(140, 180, 70, 90, 30) | _disc(140, 180, 20, 30, 12)
+    blank = truth.copy()
+    blank[hole] = 0
+    first = complete(blank, hole)
+    np.testing.assert_array_equal(complete(blank, hole), first)
+    monkeypatch.setattr(exemplar, "_workers", lambda: 1)
+    np.testing.assert_array_equal(complete(blank, hole), first)
+    assert not np.array_equal(complete(blank, hole, ExemplarSettings(seed=1)), first)  # the seed is used
+
+
+def test_pure_exemplars_copy_the_photo_and_the_structure_scale_is_the_only_difference():
+    truth = _checks()
+    hole = _disc(*truth.shape[:2], 80, 100, 30)
+    blank = truth.copy()
+    blank[hole] = 0
+    only = complete(blank, hole, ExemplarSettings(structure_sigma=0.0))
+    # Without the diffused structure every hole pixel is a pixel of the known image.
+    known = {tuple(p) for p in blank[~hole].reshape(-1, 3)}
+    assert all(tuple(p) in known for p in only[hole])
+    mixed = complete(blank, hole)
+    assert not np.array_equal(mixed, only)
+    np.testing.assert_array_equal(mixed[~hole], only[~hole])
+
+
+def test_the_painted_part_of_a_reference_fill_copies_the_render_texture():
+    """The render is an exemplar source: a texture only the render shows is continued into what
+    the render leaves uncovered, where diffusion would smear it."""
+    h, w = 160, 200
+    target = np.full((h, w, 3), 128, np.uint8)  # the known target is flat: nothing to copy there
+    truth = _checks(h, w)
+    hole = np.zeros((h, w), bool)
+    hole[30:130, 30:170] = True
+    alpha = hole.copy()
+    alpha[50:110, 110:160] = False  # a disocclusion inside the covered hole
+    painted = hole & ~alpha
+    inp = get_inpainter(InpaintConfig(method="exemplar"))
+    out = merge_fill(target, hole, truth, alpha, inp, 0.0)
+    telea = merge_fill(target, hole, truth, alpha, get_inpainter(InpaintConfig(method="telea")), 0.0)
+    err = np.abs(out.astype(int) - truth)[painted].mean()
+    telea_err = np.abs(telea.astype(int) - truth)[painted].mean()
+    assert err < 0.5 * telea_err, (err, telea_err)
+    assert _grad_ratio(out, painted, 5) > 0.8 > 0.5 > _grad_ratio(telea, painted, 5)
+    np.testing.assert_array_equal(out[~hole], target[~hole])
+    np.testing.assert_array_equal(out[alpha], truth[alpha])
+
+
+def test_no_known_patch_and_bad_settings_are_one_line_errors():
+    img = np.zeros((20, 20, 3), np.uint8)
+    hole = np.ones((20, 20), bool)
+    hole[:4, :4] = False  # known, but narrower than a 7x7 patch
+    with pytest.raises(InputError, match=r"needs at least one whole 7x7 patch of known pixels"):
+        complete(img, hole)
+    for override, message in (
+        ({"inpaint.structure_sigma_px": -1.0}, "inpaint.structure_sigma_px: -1.0 is outside"),
+        ({"inpaint.patch_radius_px": 0}, "inpaint.patch_radius_px: 0 is outside"),
+        ({"inpaint.method": "exemplars"}, "inpaint.method"),
+    ):
+        with pytest.raises(ConfigError, match=message) as info:
+            FillConfig().updated(override)
+        assert "\n" not in str(info.value)
+
+
+def test_auto_paints_with_exemplars_without_lama(monkeypatch, tmp_path):
+    monkeypatch.setenv("GEOFILL_CACHE", str(tmp_path))  # conftest: offline, nothing cached
+    inp = get_inpainter(InpaintConfig())
+    assert inp.name == "exemplar" and inp.description.startswith("exemplar (auto: LaMa (ONNX) weights")
+    assert get_inpainter(FillConfig().preset("telea").inpaint).name == "telea"
