@@ -200,7 +200,7 @@ def test_missing_onnxruntime_is_a_stereo_choice_or_a_one_line_hint(monkeypatch):
     cfg = FillConfig()
     choice = choose_backend(cfg.depth)
     assert choice.name == "stereo" and "onnxruntime, not installed" in choice.reason
-    assert get_inpainter(cfg.inpaint).name == "telea"
+    assert get_inpainter(cfg.inpaint).name == "exemplar"
     with pytest.raises(MissingExtraError, match=r"depth backend 'onnx' needs the optional 'onnx' extra"):
         check_resources(cfg.updated({"depth.backend": "onnx"}), _SOURCE_SIZE)
     with pytest.raises(MissingExtraError, match=r'LaMa inpainting needs .*pip install "geofill\[onnx\]"'):
