@@ -34,8 +34,11 @@ from ..utils.jit import njit_cached
 #: Rows per search band (one thread's unit of work); odd iterations shift the bands by half of it.
 _BAND_ROWS = 24
 #: The coarsest level is the first whose hole is at most this many patch widths from the known
-#: image (or the last one at least _MIN_SIDE_PATCHES patches across).
+#: image and whose long side is at most _COARSE_LONG_SIDE (its search is global, and a thin hole
+#: across a large image would otherwise be searched globally at full resolution), or the last one
+#: at least _MIN_SIDE_PATCHES patches across.
 _COARSE_DEPTH_PATCHES = 1.0
+_COARSE_LONG_SIDE = 256
 _MIN_SIDE_PATCHES = 6
 #: Weight of the texture features against the colour channels in the patch distance.
 _FEATURE_WEIGHT = 60.0
@@ -43,6 +46,8 @@ _FEATURE_WEIGHT = 60.0
 _SEARCH_LONG_SIDE = 1400
 #: Random-search radius at the levels below the coarsest, in patch widths.
 _REFINE_RADIUS_PATCHES = 2
+#: Levels with fewer target patches than this run in the calling thread.
+_PARALLEL_MIN_TARGETS = 20_000
 
 
 @dataclass(frozen=True)
@@ -184,7 +189,8 @@ def _workers() -> int:
 @dataclass
 class _Level:
     """One pyramid level: the image (float32, hole pixels being estimated), the hole, which patch
-    centres may be copied (``valid``), and the target patches (those touching the hole)."""
+    centres may be copied (``valid``), the target patches (those touching the hole: ``ty``, ``tx``,
+    their index ``tid`` per pixel, -1 elsewhere) and the hole pixels (``hy``, ``hx``)."""
 
     img: np.ndarray
     hole: np.ndarray
@@ -192,6 +198,8 @@ class _Level:
     ty: np.ndarray
     tx: np.ndarray
     tid: np.ndarray
+    hy: np.ndarray
+    hx: np.ndarray
 
     @classmethod
     def make(cls, img: np.ndarray, hole: np.ndarray, r: int) -> _Level:
@@ -202,7 +210,8 @@ class _Level:
         ty, tx = np.nonzero(touch)
         tid = np.full((h, w), -1, np.int32)
         tid[ty, tx] = np.arange(ty.size, dtype=np.int32)
-        return cls(img, hole, valid.astype(np.bool_), ty.astype(np.int32), tx.astype(np.int32), tid)
+        hy, hx = np.nonzero(hole)
+        return cls(img, hole, valid.astype(np.bool_), ty.astype(np.int32), tx.astype(np.int32), tid, hy, hx)
 
 
 def _downsample(img: np.ndarray, hole: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -238,9 +247,10 @@ def complete(image: np.ndarray, hole: np.ndarray, settings: ExemplarSettings | N
     # Pyramid: halve until the hole is about a patch deep, keeping known patches to copy.
     imgs, holes = [image.astype(np.float32) / 255.0], [hole]
     depth = float(distance_to(~hole).max())
-    while depth / 2 ** (len(imgs) - 1) > _COARSE_DEPTH_PATCHES * side and min(hole.shape) >> len(imgs) >= (
-        _MIN_SIDE_PATCHES * side
-    ):
+    while (
+        depth / 2 ** (len(imgs) - 1) > _COARSE_DEPTH_PATCHES * side
+        or max(hole.shape) >> (len(imgs) - 1) > _COARSE_LONG_SIDE
+    ) and min(hole.shape) >> len(imgs) >= _MIN_SIDE_PATCHES * side:
         small, small_hole = _downsample(imgs[-1], holes[-1])
         if not _has_patch(small_hole, side):
             break
@@ -267,7 +277,7 @@ def complete(image: np.ndarray, hole: np.ndarray, settings: ExemplarSettings | N
         k = part.shape[2]
         imgs[-1][..., c : c + k] = np.where(holes[-1][..., None], coarse[..., :k] / scale, part)
 
-    pool = ThreadPoolExecutor(_workers())
+    workers = ThreadPoolExecutor(_workers())
     try:
         nnf = None
         prev: _Level | None = None
@@ -278,6 +288,8 @@ def complete(image: np.ndarray, hole: np.ndarray, settings: ExemplarSettings | N
             prev = lev
             if li < top:
                 continue
+            # Small levels in this thread: handing them to the pool costs more than they do.
+            pool = workers if lev.ty.size >= _PARALLEL_MIN_TARGETS else None
             if li < n_levels - 1:
                 # Start from the coarser level's matches copied at this resolution.
                 _vote_parallel(pool, lev, nnf, np.ones(lev.ty.size, np.float32), r)
@@ -295,9 +307,9 @@ def complete(image: np.ndarray, hole: np.ndarray, settings: ExemplarSettings | N
                 _distances_parallel(pool, lev, nnf, dist, r)
         # The finest level's pixels straight from their own patch's match (Newson et al.): a mean
         # over the overlapping patches would blur what does not line up.
-        _vote_parallel(pool, prev, nnf, np.ones(prev.ty.size, np.float32), 0)
+        _vote_parallel(workers, prev, nnf, np.ones(prev.ty.size, np.float32), 0)
     finally:
-        pool.shutdown()
+        workers.shutdown()
     texture = prev.img[..., :3] * 255.0
     if s.structure_sigma > 0:
         # Large-scale structure from diffusion (Telea, at full resolution), texture from the
@@ -376,31 +388,34 @@ def _init_nnf(lev: _Level, prev: _Level | None, prev_nnf: np.ndarray | None, see
     return np.ascontiguousarray(nnf)
 
 
+def _map(pool: ThreadPoolExecutor | None, fn, items) -> None:
+    """``fn`` on every item, on the pool's threads or (no pool) in this one."""
+    if pool is None:
+        for item in items:
+            fn(item)
+    else:
+        list(pool.map(fn, items))
+
+
 def _search_parallel(pool, lev, nnf, dist, bands, step, radius, seed, r) -> None:
     parts = [bands[i :: 2 * _workers()] for i in range(2 * _workers())]
-    list(
-        pool.map(
-            lambda b: _search(
-                lev.img, lev.valid, lev.tid, lev.ty, lev.tx, nnf, dist, b, step, radius, seed, r
-            ),
-            [p for p in parts if len(p)],
-        )
+    _map(
+        pool,
+        lambda b: _search(lev.img, lev.valid, lev.tid, lev.ty, lev.tx, nnf, dist, b, step, radius, seed, r),
+        [p for p in parts if len(p)],
     )
 
 
 def _distances_parallel(pool, lev: _Level, nnf: np.ndarray, dist: np.ndarray, r: int) -> None:
     edges = np.linspace(0, lev.ty.size, _workers() + 1).astype(np.int64)
-    list(
-        pool.map(
-            lambda i: _distances(lev.img, lev.ty, lev.tx, nnf, dist, edges[i], edges[i + 1], r),
-            range(_workers()),
-        )
+    _map(
+        pool,
+        lambda i: _distances(lev.img, lev.ty, lev.tx, nnf, dist, edges[i], edges[i + 1], r),
+        range(_workers()),
     )
 
 
 def _vote_parallel(pool, lev: _Level, nnf: np.ndarray, weight: np.ndarray, r: int) -> None:
-    hy, hx = np.nonzero(lev.hole)
-    hy, hx = hy.astype(np.int32), hx.astype(np.int32)
-    chunks = np.array_split(np.arange(hy.size), _workers())
+    chunks = np.array_split(np.arange(lev.hy.size), _workers())
     # Reads only known pixels and writes only hole pixels, so in place is safe.
-    list(pool.map(lambda c: _vote(lev.img, lev.img, lev.tid, nnf, weight, hy[c], hx[c], r), chunks))
+    _map(pool, lambda c: _vote(lev.img, lev.img, lev.tid, nnf, weight, lev.hy[c], lev.hx[c], r), chunks)
