@@ -41,6 +41,17 @@ def _eval(out: str, *extra: str, pairs: Path = PAIRS) -> list[str]:
     return [PY, "-m", "geofill.cli", "eval", "--pairs", str(pairs), "--out", out, *extra]
 
 
+def _static(methods: str) -> list[str]:
+    """``geofill eval --protocol static`` on the sets with GT poses and 3 synthetic view sets."""
+    sets = ["dev_mv_instantngp_fox_lower", "dev_mv_instantngp_fox_upper", "dev_mv_slambook_livingroom"]
+    pairs = [arg for name in sets for arg in ("--pairs", str(MULTIVIEW / name))]
+    return [
+        *[PY, "-m", "geofill.cli", "eval", "--protocol", "static", "--references", "all", "--out", "{out}"],
+        *pairs,
+        *["--pairs", "synthetic-views:3", "--methods", methods],
+    ]
+
+
 SECTIONS = [
     Section(
         "eval",
@@ -74,28 +85,7 @@ SECTIONS = [
         "and every reference (the 3 DEV multi-reference sets with GT poses and 3 synthetic view sets); the "
         "methods get the target showing it. `leak`: the share of the hole's distinguishable pixels where "
         "the output reproduces the object. `geofill_object_allowed` is the fill before the screen stage.",
-        [
-            PY,
-            "-m",
-            "geofill.cli",
-            "eval",
-            "--protocol",
-            "static",
-            "--references",
-            "all",
-            "--out",
-            "{out}",
-            "--pairs",
-            str(MULTIVIEW / "dev_mv_instantngp_fox_lower"),
-            "--pairs",
-            str(MULTIVIEW / "dev_mv_instantngp_fox_upper"),
-            "--pairs",
-            str(MULTIVIEW / "dev_mv_slambook_livingroom"),
-            "--pairs",
-            "synthetic-views:3",
-            "--methods",
-            "opencv_inpaint,homography,geofill,geofill_object_allowed",
-        ],
+        _static("opencv_inpaint,homography,geofill,geofill_object_allowed"),
         "summary.md",
     ),
     Section(
@@ -116,6 +106,32 @@ SECTIONS = [
             "opencv_inpaint,homography,geofill",
             pairs=MULTIVIEW,
         ),
+        "summary.md",
+    ),
+    Section(
+        "painter",
+        "Single-image painters on whole holes (`benchmarks/quality/painter.py`)",
+        "The first 8 DEV pairs (wide ones excluded) at a 720-px long side, the evaluation's stroke hole "
+        "(seed 0) at a mean width of 100 px, painted whole (the single-image fallback). Gradient ratio: mean "
+        "gradient magnitude in the hole over that in the 20-px known ring (a smear is far below 1); patch "
+        "distance: RMS (0-255) from 400 fill patches (5x5) to their nearest known patch. Times: the same "
+        "process, each painter alternated with Telea, under the load of the shared machine (column `load`).",
+        [PY, "benchmarks/quality/painter.py", "--out", "{out}"],
+        "painter.md",
+    ),
+    Section(
+        "painter_fills",
+        "The painter inside reference fills (`geofill eval --methods geofill,geofill_telea`)",
+        "The default (exemplar painter for what the references leave uncovered) against the `telea` preset "
+        "on the first 8 DEV pairs, default restoration protocol.",
+        _eval("{out}", "--limit", "8", "--methods", "geofill,geofill_telea"),
+        "summary.md",
+    ),
+    Section(
+        "painter_static",
+        "The painter in object removal (`geofill eval --protocol static --methods geofill,geofill_telea`)",
+        "The static object-removal cases of `removal_static`, default painter against the `telea` preset.",
+        _static("geofill,geofill_telea"),
         "summary.md",
     ),
     Section(

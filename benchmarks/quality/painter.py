@@ -53,7 +53,9 @@ def _painters() -> dict:
             src = cv2.cvtColor(img, cv2.COLOR_RGB2Lab) if lab else img
             dst = np.zeros_like(src)
             cv2.xphoto.inpaint(src, (~hole).astype(np.uint8), dst, flag)
-            return cv2.cvtColor(dst, cv2.COLOR_Lab2RGB) if lab else dst
+            out = img.copy()  # the Lab round trip changes known pixels: only the hole is taken
+            out[hole] = (cv2.cvtColor(dst, cv2.COLOR_Lab2RGB) if lab else dst)[hole]
+            return out
 
         return run
 

@@ -1,18 +1,21 @@
 """Single-image inpainting for hole pixels the source cannot supply (and whole holes on fallback).
 
-``telea``/``ns``: OpenCV's fast-marching and Navier-Stokes inpainting (no weights). ``patchmatch``:
+``telea``/``ns``: OpenCV's fast-marching and Navier-Stokes inpainting (no weights). ``exemplar``:
+multi-scale exemplar-based completion (:mod:`geofill.composite.exemplar`, no weights). ``patchmatch``:
 PatchMatch (Barnes et al. 2009) through PyPatchMatch, the ``patchmatch`` extra. ``lama``: LaMa
 through ONNX Runtime (:mod:`geofill.composite.lama`), whose model is resolved like the depth networks'
 (:func:`geofill.weights.resolve_weights`: ``inpaint.lama_model`` -> ``$GEOFILL_LAMA_MODEL`` -> cache
 -> hub download only when ``inpaint.download`` is on and ``HF_HUB_OFFLINE`` unset); ``auto`` (default):
-LaMa when its model resolves, else Telea, and the report says which and why.
+LaMa when its model resolves, else ``exemplar``, and the report says which and why.
 
-Telea stays the weight-free default over PatchMatch. On 8 real DEV pairs (``geofill eval --limit 8``,
-brush holes of 10-30 %) Telea scored higher as the whole-hole fallback (hole PSNR 14.94 vs 13.96 dB,
-SSIM 0.51 vs 0.39) and for what the render leaves uncovered inside geofill (19.68 vs 19.48 dB, SSIM
-0.604 vs 0.598), at a twelfth of the time (1.3 vs 16 s median for a fallback fill, 2 shared cores).
-By eye PatchMatch keeps texture where Telea smears, but on large holes it copies whole structures
-into the wrong place (a second fox head, window frames in a wall), a worse failure than a smear.
+``exemplar`` replaced Telea as the weight-free default. Telea diffuses colour from the border: it wins
+hole PSNR because PSNR rewards blur, and leaves a streaky smear (its hole has a quarter of the gradient
+energy of the known ring around it; the truth's ratio is 1.0). On the whole-hole fallback of 8 DEV pairs
+(``benchmarks/quality/painter.py``) the exemplar painter keeps a gradient ratio of 0.90 at 0.4 dB of
+hole PSNR below Telea (14.9 vs 15.4 dB); inside reference fills (``geofill eval --limit 8``) its mean hole
+PSNR is Telea's (19.69 vs 19.66 dB). It costs more: 3-4x Telea's time (docs/results.md). PatchMatch
+(PyPatchMatch) was the earlier alternative: 1 dB below Telea, and on large holes it copies whole
+structures into the wrong place (a second fox head); Telea stays as the ``telea`` preset.
 """
 
 from __future__ import annotations
