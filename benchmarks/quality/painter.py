@@ -11,7 +11,9 @@ too); the patch distance (RMS, 0-255, of 400 fill patches of 5x5 px to their exa
 patch, sampled every 2 px: a fill made of the photo's own patches is near 0); and the median time.
 
 Time: a 1280x720 and a 3840x2160 crop of a DEV target with a 15 % stroke hole (and at 1280x720 also
-30 % and 45 %), each painter alternated with Telea in the same run, medians of ``--repeats``.
+30 % and 45 %), each painter alternated with Telea in the same run, medians of ``--repeats``: wall
+time and, in brackets, the process's CPU time (all threads; less disturbed by other processes on a
+shared machine than the wall time).
 
 Writes ``DIR/painter.json`` (every number) and ``DIR/painter.md`` (the tables, for
 docs/results.md) and, with ``--sheets``, contact sheets (truth | hole | each painter) there.
@@ -195,13 +197,16 @@ def timing(painters: dict, repeats: int) -> list[dict]:
             h, w, seed=1, mean_width_px=width, area_range=(share - 0.005, share + 0.005)
         ).render(width)
         times: dict[str, list[float]] = {name: [] for name in painters}
+        cpu: dict[str, list[float]] = {name: [] for name in painters}
         for _ in range(repeats):
             for name, run in painters.items():
-                t0 = time.perf_counter()
+                t0, c0 = time.perf_counter(), time.process_time()
                 run(img, hole)
                 times[name].append(time.perf_counter() - t0)
+                cpu[name].append(time.process_time() - c0)
         row = {"size": f"{w}x{h}", "hole": round(float(hole.mean()), 3), "load": os.getloadavg()[0]}
         row |= {name: statistics.median(v) for name, v in times.items()}
+        row |= {f"{name} cpu": statistics.median(v) for name, v in cpu.items()}
         print(row, flush=True)
         out.append(row)
     return out
@@ -228,7 +233,7 @@ def markdown(rows: dict, times: list[dict], names: list[str]) -> str:
             "| --- " * (3 + len(timed)) + "|",
         ]
         for row in times:
-            cells = " | ".join(f"{row[n]:.2f} s" for n in timed)
+            cells = " | ".join(f"{row[n]:.2f} s ({row[n + ' cpu']:.2f} s)" for n in timed)
             lines.append(f"| {row['size']} | {100 * row['hole']:.0f} % | {row['load']:.1f} | {cells} |")
     return "\n".join(lines) + "\n"
 

@@ -1,8 +1,9 @@
 """The four real object removals users tried (masks brushed over objects): a bush and a parked red
 car in Lund, a sign on a facade, people on Berlin cathedral's steps. Each is filled with the removed
 object refused (today's default) and allowed (``screen.removed_object=allow``, the fill before
-object removal), and by single-image inpainting; prints what each fill copied, refused and painted,
-and writes one contact sheet per case.
+object removal), refused with Telea painting what no reference shows (the ``telea`` preset), and by
+single-image inpainting; prints what each fill copied, refused and painted, and writes one contact
+sheet per case.
 
     .venv/bin/python benchmarks/quality/removal_cases.py [--out docs/img]
 
@@ -104,6 +105,7 @@ def main(argv: list[str] | None = None) -> int:
         t0 = time.perf_counter()
         before = fill(pair.target, hole, pair.sources, allow, **exif)
         t_before = time.perf_counter() - t0
+        smeared = fill(pair.target, hole, pair.sources, refuse.preset("telea"), **exif)
         painted = inpaint_single(pair.target, hole, refuse.inpaint)
         print(
             f"{name}: hole {100 * hole.mean():.1f}% of the target, {len(pair.sources)} reference(s)\n"
@@ -117,7 +119,8 @@ def main(argv: list[str] | None = None) -> int:
         tiles += [
             _tile(_crop(before.image, hole), "object allowed (before)"),
             _tile(_crop(after.image, hole), "object refused (now)"),
-            _tile(_crop(painted, hole), "single-image (Telea)"),
+            _tile(_crop(smeared.image, hole), "refused, Telea painter"),
+            _tile(_crop(painted, hole), f"single-image ({after.report.inpaint_method.split()[0]})"),
         ]
         row = np.concatenate(tiles, axis=1)
         cv2.imwrite(
