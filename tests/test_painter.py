@@ -37,9 +37,13 @@ def _disc(h: int, w: int, cy: int, cx: int, radius: int) -> np.ndarray:
     return (yy - cy) ** 2 + (xx - cx) ** 2 <= radius**2
 
 
-def test_periodic_texture_is_continued_where_telea_smears():
-    truth = _checks()
-    hole = _disc(*truth.shape[:2], 80, 100, 32)
+@pytest.mark.parametrize(
+    ("h", "w"),
+    [(160, 200), (200, 1500)],  # the second's finest level is too long to search: matches copied up
+)
+def test_periodic_texture_is_continued_where_telea_smears(h, w):
+    truth = _checks(h, w)
+    hole = _disc(h, w, h // 2, w // 2, 32)
     blank = truth.copy()
     blank[hole] = 0
     out = complete(blank, hole)
