@@ -13,7 +13,7 @@ from geofill.composite.exemplar import ExemplarSettings, complete
 from geofill.composite.inpaint import get_inpainter
 from geofill.composite.merge import merge_fill
 from geofill.config import FillConfig, InpaintConfig
-from geofill.errors import ConfigError, InputError
+from geofill.errors import ConfigError
 
 
 def _grad_ratio(img: np.ndarray, hole: np.ndarray, ring_px: int = 10) -> float:
@@ -131,12 +131,22 @@ def test_the_painted_part_of_a_reference_fill_copies_the_render_texture():
     np.testing.assert_array_equal(out[alpha], truth[alpha])
 
 
-def test_no_known_patch_and_bad_settings_are_one_line_errors():
-    img = np.zeros((20, 20, 3), np.uint8)
-    hole = np.ones((20, 20), bool)
-    hole[:4, :4] = False  # known, but narrower than a 7x7 patch
-    with pytest.raises(InputError, match=r"needs at least one whole 7x7 patch of known pixels"):
-        complete(img, hole)
+def test_speckles_are_diffused_small_known_areas_use_small_patches_and_bad_settings_fail():
+    truth = _checks(60, 60)
+    speckle = np.zeros((60, 60), bool)
+    speckle[::4, ::4] = True  # 1 px deep: diffused
+    speckle[1::2, 30:] = True  # no 3x3 patch known there, and 1 px deep too
+    blank = truth.copy()
+    blank[speckle] = 0
+    telea = cv2.inpaint(blank, speckle.astype(np.uint8), 5.0, cv2.INPAINT_TELEA)
+    np.testing.assert_array_equal(complete(blank, speckle), np.where(speckle[..., None], telea, blank))
+    hole = np.ones((40, 40), bool)
+    hole[:5, :5] = False  # known: a 5x5 corner, too small for 7x7 patches, enough for 5x5 ones
+    img = np.zeros((40, 40, 3), np.uint8)
+    img[:5, :5] = truth[:5, :5]
+    out = complete(img, hole, ExemplarSettings(structure_sigma=0.0))
+    np.testing.assert_array_equal(out[~hole], img[~hole])
+    assert {tuple(p) for p in out[hole]} <= {tuple(p) for p in img[:5, :5].reshape(-1, 3)}
     for override, message in (
         ({"inpaint.structure_sigma_px": -1.0}, "inpaint.structure_sigma_px: -1.0 is outside"),
         ({"inpaint.patch_radius_px": 0}, "inpaint.patch_radius_px: 0 is outside"),

@@ -36,7 +36,6 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from ..errors import InputError
 from ..utils.distance import distance_to
 from ..utils.jit import njit_cached
 
@@ -48,6 +47,8 @@ _BAND_ROWS = 24
 #: at least _MIN_SIDE_PATCHES patches across.
 _COARSE_DEPTH_PATCHES = 1.0
 _COARSE_LONG_SIDE = 256
+#: Holes no deeper than this (px from the known image) are diffused, not copied (see complete).
+_DIFFUSE_DEPTH_PX = 2.0
 _MIN_SIDE_PATCHES = 6
 #: Weight of the texture features against the colour channels in the patch distance.
 _FEATURE_WEIGHT = 60.0
@@ -242,20 +243,30 @@ def _block_sum(a: np.ndarray) -> np.ndarray:
 
 def complete(image: np.ndarray, hole: np.ndarray, settings: ExemplarSettings | None = None) -> np.ndarray:
     """``image`` (HxWx3 uint8) with ``hole`` (HxW bool) painted from patches of the rest of the
-    image, which is returned unchanged."""
+    image, which is returned unchanged. ``settings.patch_radius`` shrinks (to 1) where no whole
+    patch of that size is known; a hole at most 2 px deep, or one leaving no 3x3 patch known, is
+    diffused (Telea)."""
     s = settings or ExemplarSettings()
     r = s.patch_radius
     hole = hole.astype(bool)
     out = image.copy()
     if not hole.any():
         return out
+    # A hole that leaves no whole patch known is copied with the largest patch that fits, down to
+    # 3x3. A hole no deeper than _DIFFUSE_DEPTH_PX (speckles, cracks) is diffused: there is no
+    # texture to continue across a pixel or two, and on speckles every 4 px of a sharp pattern the
+    # 3x3 copies were twice as far from the truth as Telea (mean error 42 vs 21 levels).
+    while r > 1 and not _has_patch(hole, 2 * r + 1):
+        r -= 1
     side = 2 * r + 1
-    if not _has_patch(hole, side):
-        raise InputError(f"exemplar painting needs at least one whole {side}x{side} patch of known pixels")
+    depth = float(distance_to(~hole).max())
+    if depth <= _DIFFUSE_DEPTH_PX or not _has_patch(hole, side):
+        diffused = cv2.inpaint(image, hole.astype(np.uint8), 5.0, cv2.INPAINT_TELEA)
+        np.copyto(out, diffused, where=hole[..., None])
+        return out
 
     # Pyramid: halve until the hole is about a patch deep, keeping known patches to copy.
     imgs, holes = [image.astype(np.float32) / 255.0], [hole]
-    depth = float(distance_to(~hole).max())
     while (
         depth / 2 ** (len(imgs) - 1) > _COARSE_DEPTH_PATCHES * side
         or max(hole.shape) >> (len(imgs) - 1) > _COARSE_LONG_SIDE
