@@ -47,9 +47,9 @@ _BAND_ROWS = 24
 #: at least _MIN_SIDE_PATCHES patches across.
 _COARSE_DEPTH_PATCHES = 1.0
 _COARSE_LONG_SIDE = 256
+_MIN_SIDE_PATCHES = 6
 #: Holes no deeper than this (px from the known image) are diffused, not copied (see complete).
 _DIFFUSE_DEPTH_PX = 2.0
-_MIN_SIDE_PATCHES = 6
 #: Weight of the texture features against the colour channels in the patch distance.
 _FEATURE_WEIGHT = 60.0
 #: Long side (px) above which a level is not searched (see :func:`complete`).
@@ -63,7 +63,9 @@ _PARALLEL_MIN_TARGETS = 20_000
 @dataclass(frozen=True)
 class ExemplarSettings:
     """``patch_radius``: patches are (2r + 1)^2 px; ``iterations``: EM iterations at the coarsest
-    level (halved, to at least ``min_iterations``, at each finer level); ``seed``: of the search."""
+    level (halved, to at least ``min_iterations``, at each finer level); ``structure_sigma``: the
+    Gaussian scale (px) above which the fill is Telea's diffusion (0: exemplars only); ``seed``: of
+    the search."""
 
     patch_radius: int = 3
     iterations: int = 8
@@ -193,7 +195,8 @@ def _distances(img, ty, tx, nnf, dist, lo, hi, r):  # pragma: no cover - compile
 
 
 def _workers() -> int:
-    return max(1, min(len(os.sched_getaffinity(0)), 8))
+    usable = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    return max(1, min(usable or 1, 8))
 
 
 @dataclass
