@@ -102,8 +102,9 @@ SECTIONS = [
         "removal_strangers",
         "Object removal, strangers in the references (`geofill eval --protocol strangers`)",
         "Cutouts pasted into the references over 30-60 % of where the hole's background appears in them; "
-        "the target's hole shows another cutout. Nothing in the target shows the strangers, so the screen "
-        "stage cannot refuse them (measured: docs/architecture.md).",
+        "the target's hole shows another cutout. The screen stage refuses the render content that continues "
+        "a stranger reaching beyond the hole (where the render disagrees with the target around it); a "
+        "stranger wholly inside the hole's footprint is not caught (docs/architecture.md).",
         _eval(
             "{out}",
             "--protocol",
