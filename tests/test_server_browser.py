@@ -153,7 +153,7 @@ def test_brush_fill_download_in_chromium(chromium, server, scene, tmp_path):
     try:
         driver.get(url)
         wait = WebDriverWait(driver, 30)
-        wait.until(lambda d: d.find_elements(By.CSS_SELECTOR, "#advanced-fields fieldset"))
+        wait.until(lambda d: d.find_elements(By.CSS_SELECTOR, "#advanced-fields .field"))
         _upload(driver, "file-target", folder / "target.png")
         canvas = driver.find_element(By.ID, "view")
         wait.until(lambda d: canvas.is_displayed())
@@ -268,7 +268,7 @@ def test_reference_mask_brushed_in_chromium(chromium, server, masked_scene, tmp_
     try:
         driver.get(url)
         wait = WebDriverWait(driver, 30)
-        wait.until(lambda d: d.find_elements(By.CSS_SELECTOR, "#advanced-fields fieldset"))
+        wait.until(lambda d: d.find_elements(By.CSS_SELECTOR, "#advanced-fields .field"))
         driver.execute_script(_RECORD_FORMS)
         _upload(driver, "file-target", folder / "target.png")
         canvas = driver.find_element(By.ID, "view")
