@@ -6,11 +6,13 @@ carries its mask and the fill refused those pixels.
 
 The browser is installed by this test's set-up when it is missing and we are root (``apt-get``);
 the test is skipped, saying why, only when no Chromium can be had. Screenshots of the finished page
-are written to ``test-artifacts/server_page.png`` and ``test-artifacts/reference_mask.png``
-(``$GEOFILL_TEST_ARTIFACTS`` overrides the folder)."""
+are written to ``test-artifacts/`` (``$GEOFILL_TEST_ARTIFACTS`` overrides the folder):
+``server_page.png``, ``reference_mask.png``, ``page_result_<width>x<height>.png`` at three window
+sizes and, with the real pairs, ``page_1440x900.jpg`` and ``page_390x844.jpg`` (docs/img)."""
 
 from __future__ import annotations
 
+import io
 import os
 import shutil
 import subprocess
@@ -535,5 +537,40 @@ def test_result_view_divider_errors_and_small_windows_in_chromium(chromium, serv
             )
             assert extents[0] <= extents[1] and extents[2] <= extents[3], (width, extents)
             driver.execute_script("document.querySelectorAll('details').forEach((d) => { d.open = false; });")
+    finally:
+        driver.quit()
+
+
+@pytest.mark.slow
+def test_a_real_photo_at_desktop_and_phone_sizes_in_chromium(chromium, server, pairs_dir, tmp_path):
+    """Berlin cathedral's steps (a real DEV pair, 1280x960): two passers-by brushed over and
+    filled; at 1440x900 and at 390x844 the result shows undistorted, fitted, large and without
+    sideways scroll. Its screenshots (``page_1440x900.jpg``, ``page_390x844.jpg``) are the
+    documentation's (docs/img)."""
+    url, _ = server
+    pair = pairs_dir / "dev_opensfm_berlin_01_02"
+    driver = _driver(chromium, tmp_path)
+    try:
+        _viewport(driver, 1440, 900)
+        driver.get(url)
+        wait = WebDriverWait(driver, 30)
+        wait.until(lambda d: d.find_elements(By.CSS_SELECTOR, "#advanced-fields .field"))
+        _upload(driver, "file-target", pair / "target.jpg")
+        canvas = driver.find_element(By.ID, "view")
+        wait.until(lambda d: canvas.is_displayed())
+        _upload(driver, "file-refs", pair / "source.jpg")
+        wait.until(lambda d: len(d.find_elements(By.CSS_SELECTOR, "#ref-list img")) == 1)
+        _brush(driver, canvas, [(405, 760), (405, 830), (410, 900)], _slider_for(driver, 120))  # walking man
+        _brush(driver, canvas, [(712, 750), (716, 820), (720, 890)], _slider_for(driver, 130))  # woman
+        driver.find_element(By.ID, "fill").click()
+        _wait_for_fill(driver)
+        assert "% from reference 1" in driver.find_element(By.ID, "summary").text
+        ARTIFACTS.mkdir(parents=True, exist_ok=True)
+        for width, height, share in ((1440, 900, 0.5), (390, 844, 0.25)):
+            _viewport(driver, width, height)
+            driver.execute_script("window.scrollTo(0, 0)")
+            _assert_editor_fits(_settled_layout(driver), share)
+            shot = Image.open(io.BytesIO(driver.get_screenshot_as_png())).convert("RGB")
+            shot.save(ARTIFACTS / f"page_{width}x{height}.jpg", quality=90)
     finally:
         driver.quit()

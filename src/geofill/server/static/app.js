@@ -599,7 +599,13 @@ function fieldRow(f, fullKey) {
   const input = fieldInput(f);
   const label = document.createElement("label");
   label.htmlFor = input.id;
-  label.append(Object.assign(document.createElement("code"), { textContent: fullKey ? f.key : f.key.split(".").pop() }));
+  const name = document.createElement("code");
+  // a long key may wrap after a dot or an underscore, not inside a word
+  (fullKey ? f.key : f.key.split(".").pop()).split(/(?<=[._])/).forEach((part, i) => {
+    if (i) name.append(document.createElement("wbr"));
+    name.append(part);
+  });
+  label.append(name);
   const about = document.createElement("p");
   richText(about, f.description);
   about.id = `${input.id}-about`;
