@@ -135,6 +135,19 @@ def _offset(driver, x: float, y: float) -> tuple[int, int]:
     return round((x - pw / 2) * scale), round((y - ph / 2) * scale)
 
 
+def _open(driver, url: str, target: Path, reference: Path):
+    """The page loaded with its options, ``target`` open in the editor, ``reference`` added: the canvas."""
+    driver.get(url)
+    wait = WebDriverWait(driver, 30)
+    wait.until(lambda d: d.find_elements(By.CSS_SELECTOR, "#advanced-fields .field"))
+    _upload(driver, "file-target", target)
+    canvas = driver.find_element(By.ID, "view")
+    wait.until(lambda d: canvas.is_displayed())
+    _upload(driver, "file-refs", reference)
+    wait.until(lambda d: len(d.find_elements(By.CSS_SELECTOR, "#ref-list img")) == 1)
+    return canvas
+
+
 def _set_range(driver, slider, value: float) -> None:
     """A range input set to ``value`` as a drag would (its input event included)."""
     driver.execute_script(
@@ -160,14 +173,8 @@ def test_brush_fill_download_in_chromium(chromium, server, scene, tmp_path):
     downloads.mkdir()
     driver = _driver(chromium, downloads)
     try:
-        driver.get(url)
+        canvas = _open(driver, url, folder / "target.png", folder / "reference.png")
         wait = WebDriverWait(driver, 30)
-        wait.until(lambda d: d.find_elements(By.CSS_SELECTOR, "#advanced-fields .field"))
-        _upload(driver, "file-target", folder / "target.png")
-        canvas = driver.find_element(By.ID, "view")
-        wait.until(lambda d: canvas.is_displayed())
-        _upload(driver, "file-refs", folder / "reference.png")
-        wait.until(lambda d: len(d.find_elements(By.CSS_SELECTOR, "#ref-list img")) == 1)
         assert driver.find_element(By.ID, "fill").get_attribute("disabled")  # no hole yet
 
         # a horizontal stroke across the magenta object, in image pixels mapped to the canvas
@@ -552,14 +559,7 @@ def test_a_real_photo_at_desktop_and_phone_sizes_in_chromium(chromium, server, p
     driver = _driver(chromium, tmp_path)
     try:
         _viewport(driver, 1440, 900)
-        driver.get(url)
-        wait = WebDriverWait(driver, 30)
-        wait.until(lambda d: d.find_elements(By.CSS_SELECTOR, "#advanced-fields .field"))
-        _upload(driver, "file-target", pair / "target.jpg")
-        canvas = driver.find_element(By.ID, "view")
-        wait.until(lambda d: canvas.is_displayed())
-        _upload(driver, "file-refs", pair / "source.jpg")
-        wait.until(lambda d: len(d.find_elements(By.CSS_SELECTOR, "#ref-list img")) == 1)
+        canvas = _open(driver, url, pair / "target.jpg", pair / "source.jpg")
         _brush(driver, canvas, [(405, 760), (405, 830), (410, 900)], _slider_for(driver, 120))  # walking man
         _brush(driver, canvas, [(712, 750), (716, 820), (720, 890)], _slider_for(driver, 130))  # woman
         driver.find_element(By.ID, "fill").click()
