@@ -472,7 +472,8 @@ def test_result_view_divider_errors_and_small_windows_in_chromium(chromium, serv
     """After a fill the photo keeps its shape and stays fitted; left of the divider, labelled
     Before, is the photo, right of it the result; an error about a file goes once a good file
     loads; the advanced options are grouped and described; at 1440x900, 800x600 and 360x640 the
-    editor shows the photo large, undistorted, without sideways scroll (panel and options included)."""
+    editor shows the photo large, undistorted, without sideways scroll (panel and options included);
+    on the phone-sized one two fingers zoom."""
     url, app = server
     folder, target = scene
     bad = tmp_path / "notimage.png"
@@ -544,8 +545,29 @@ def test_result_view_divider_errors_and_small_windows_in_chromium(chromium, serv
             )
             assert extents[0] <= extents[1] and extents[2] <= extents[3], (width, extents)
             driver.execute_script("document.querySelectorAll('details').forEach((d) => { d.open = false; });")
+
+        # on the phone-sized window two fingers zoom: spread from 40 to 140 px apart, 3.5x
+        driver.execute_cdp_cmd("Emulation.setTouchEmulationEnabled", {"enabled": True, "maxTouchPoints": 2})
+        left, top, w, h = driver.execute_script(
+            "const r = view.getBoundingClientRect(); return [r.left, r.top, r.width, r.height];"
+        )
+        x, y = left + w / 2, top + h / 2
+        fitted = driver.execute_script("return state.view.scale")
+        _touch(driver, "touchStart", [(x - 20, y)])
+        _touch(driver, "touchStart", [(x - 20, y), (x + 20, y)])
+        for step in range(1, 6):
+            _touch(driver, "touchMove", [(x - 20 - 10 * step, y), (x + 20 + 10 * step, y)])
+        _touch(driver, "touchEnd", [])
+        view = driver.execute_script("return [state.view.scale, state.target.layer.ops.length]")
+        assert view == [pytest.approx(fitted * 3.5, rel=1e-6), 1]  # zoomed; the hole unchanged
     finally:
         driver.quit()
+
+
+def _touch(driver, kind: str, points: list[tuple[float, float]]) -> None:
+    """One touch event (CDP), ``points`` the fingers on the screen (CSS px), one id each."""
+    fingers = [{"x": x, "y": y, "id": i} for i, (x, y) in enumerate(points)]
+    driver.execute_cdp_cmd("Input.dispatchTouchEvent", {"type": kind, "touchPoints": fingers})
 
 
 @pytest.mark.slow

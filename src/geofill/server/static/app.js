@@ -420,11 +420,32 @@ function setTool(tool) {
   render();
 }
 
+// Two fingers on a touch screen zoom and pan (a stroke the first finger began is dropped).
+const touches = new Map(); // pointerId -> [x, y] in canvas px
+let pinch = null; // {d, x, y}: the fingers' distance and midpoint at the last move
+
+function pinchOf() {
+  const [[ax, ay], [bx, by]] = [...touches.values()];
+  return { d: Math.max(Math.hypot(bx - ax, by - ay), 1), x: (ax + bx) / 2, y: (ay + by) / 2 };
+}
+
 view.addEventListener("pointerdown", (e) => {
   if (!state.doc) return;
   view.focus();
   view.setPointerCapture(e.pointerId);
   const [x, y] = canvasPoint(e);
+  if (e.pointerType === "touch") {
+    touches.set(e.pointerId, [x, y]);
+    if (touches.size >= 2) {
+      if (state.stroke) {
+        state.stroke = null;
+        rebuildMask();
+      }
+      state.pan = null;
+      pinch = touches.size === 2 ? pinchOf() : null;
+      return;
+    }
+  }
   const panning = e.button === 1 || state.tool === "pan" || state.spaceDown || showingResult();
   if (panning) {
     state.pan = { x, y, ox: state.view.ox, oy: state.view.oy };
@@ -439,6 +460,14 @@ view.addEventListener("pointerdown", (e) => {
 
 view.addEventListener("pointermove", (e) => {
   const [x, y] = canvasPoint(e);
+  if (touches.has(e.pointerId)) touches.set(e.pointerId, [x, y]);
+  if (pinch && touches.size === 2) {
+    const now = pinchOf();
+    panBy(now.x - pinch.x, now.y - pinch.y);
+    zoomAt(now.d / pinch.d, now.x, now.y);
+    pinch = now;
+    return;
+  }
   state.pointer = [x, y];
   if (state.pan) {
     state.view.ox = state.pan.ox + x - state.pan.x;
@@ -452,7 +481,12 @@ view.addEventListener("pointermove", (e) => {
   render();
 });
 
-function endPointer() {
+function endPointer(e) {
+  touches.delete(e.pointerId);
+  if (pinch || touches.size) {
+    pinch = null; // the fingers left after a pinch neither draw nor pan
+    return;
+  }
   if (state.stroke) {
     const stroke = state.stroke;
     state.stroke = null;
