@@ -560,6 +560,19 @@ def test_result_view_divider_errors_and_small_windows_in_chromium(chromium, serv
         _touch(driver, "touchEnd", [])
         view = driver.execute_script("return [state.view.scale, state.target.layer.ops.length]")
         assert view == [pytest.approx(fitted * 3.5, rel=1e-6), 1]  # zoomed; the hole unchanged
+        # on a photo being edited, the stroke the first finger began is dropped when a second comes
+        driver.find_element(By.ID, "keep-editing").click()
+        WebDriverWait(driver, 10).until(lambda d: d.execute_script("return state.result === null"))
+        driver.execute_script("window.scrollTo(0, 0)")
+        _touch(driver, "touchStart", [(x - 40, y)])
+        _touch(driver, "touchMove", [(x - 20, y)])
+        _touch(driver, "touchStart", [(x - 20, y), (x + 20, y)])
+        _touch(driver, "touchMove", [(x - 30, y), (x + 30, y)])
+        _touch(driver, "touchEnd", [])
+        hole = """const m = state.target.layer.mask;
+        return m.getContext('2d').getImageData(0, 0, m.width, m.height).data.some((v) => v > 0);"""
+        assert driver.execute_script("return state.target.layer.ops.length") == 0
+        assert not driver.execute_script(hole)
     finally:
         driver.quit()
 
