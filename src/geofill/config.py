@@ -521,7 +521,7 @@ class OptimizeConfig:
     )
     refine_focal: bool = setting(
         False,
-        "Refine a focal scale shared by both images as an extra parameter (issue 7); off = the paper.",
+        "Refine a focal scale shared by both images as an extra parameter; off = the paper.",
     )
     focal_prior_weight: Annotated[float, Range(0, 1e6)] = setting(
         0.01,
