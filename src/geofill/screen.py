@@ -187,8 +187,8 @@ def strangers(
     """Hole pixels of a window (covered by ``alpha``) whose render continues content that the target
     does not show around the hole: regions of the render within ``sc.stranger_ring_px`` of the hole
     that disagree with ``target`` (after the median colour difference there is taken out; over
-    ``sc.stranger_threshold``, wide and large enough, touching
-    the hole) are grown into it by the watershed, against the pixels that agree with the target
+    ``sc.stranger_threshold``, also with the render shifted by up to 12 px; wide and large enough,
+    near the hole) are grown into it by the watershed, against the pixels that agree with the target
     (under ``sc.stranger_agreement``). ``shape``: the full target's, for pixel scaling.
 
     >>> hole = np.zeros((40, 60), bool); hole[10:30, 20:40] = True
@@ -204,17 +204,23 @@ def strangers(
     if not ring.any():
         return np.zeros(hole.shape, bool)
     k = _odd(config_px(5.0, shape))
-    delta = render.astype(np.float32) - target.astype(np.float32)
-    delta -= np.median(delta[ring], axis=0)  # the exposure and white balance of the two photos
-    raw = np.abs(delta).mean(axis=2)
+    # The exposure and white balance of the two photos: the median difference around the hole.
+    level = target.astype(np.float32) + np.median(render[ring].astype(np.float32) - target[ring], axis=0)
+    raw = np.abs(render - level).mean(axis=2)
     diff = cv2.blur(raw, (k, k))
-    # Both the box mean and the pixel itself: the mean alone spreads a stranger's edge outwards.
-    seeds = (ring & (diff > sc.stranger_threshold) & (raw > sc.stranger_threshold)).astype(np.uint8)
+    # Both the box mean and the pixel itself: the mean alone spreads a stranger's edge outwards. A
+    # render that is only misaligned (depth off at an occlusion edge) agrees once shifted a little;
+    # a stranger does not.
+    reach = config_px(12.0, shape)
+    seeds = ring & (diff > sc.stranger_threshold) & (raw > sc.stranger_threshold)
+    seeds &= _shifted_min_diff(render, level, k, reach) > sc.stranger_threshold
     # An opening removes the thin lines that misalignment leaves along edges.
     m = max(3, _odd(config_px(sc.stranger_min_px / 2, shape)))
-    seeds = cv2.morphologyEx(seeds, cv2.MORPH_OPEN, np.ones((m, m), np.uint8))
+    seeds = cv2.morphologyEx(seeds.astype(np.uint8), cv2.MORPH_OPEN, np.ones((m, m), np.uint8))
     n, labels, stats, _ = cv2.connectedComponentsWithStats(seeds, connectivity=8)
-    touching = cv2.dilate(hole.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+    # Within the shift's reach of the hole: the band a shift explains lies between.
+    near = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (_odd(2 * reach + 3),) * 2)
+    touching = cv2.dilate(hole.astype(np.uint8), near) > 0
     big = stats[:, cv2.CC_STAT_AREA] >= config_px(sc.stranger_min_px, shape) ** 2
     keep = np.zeros(n, bool)
     keep[np.unique(labels[touching & (labels > 0)])] = True
@@ -320,6 +326,21 @@ def seen_again(
     deep[np.unique(labels[candidate & inner])] = True
     deep[0] = False
     return deep[labels]
+
+
+def _shifted_min_diff(render: np.ndarray, target: np.ndarray, k: int, reach_px: float) -> np.ndarray:
+    """Per pixel, the smallest box mean (side ``k``) of the absolute difference between ``target``
+    (float32) and ``render`` shifted by up to ``reach_px`` in each direction (steps of a third)."""
+    step = max(1, round(reach_px / 3))
+    r = 3 * step
+    padded = cv2.copyMakeBorder(render, r, r, r, r, cv2.BORDER_REPLICATE).astype(np.float32)
+    h, w = render.shape[:2]
+    best = np.full((h, w), np.inf, np.float32)
+    for dy in range(-r, r + 1, step):
+        for dx in range(-r, r + 1, step):
+            shifted = padded[r + dy : r + dy + h, r + dx : r + dx + w]
+            np.minimum(best, cv2.blur(np.abs(shifted - target).mean(axis=2), (k, k)), out=best)
+    return best
 
 
 def _odd(px: float) -> int:
