@@ -176,6 +176,11 @@ def screen_render(
     )
 
 
+#: Long side (px) at which the stranger test runs: it finds regions tens of pixels wide, and at full
+#: resolution its watershed and statistics cost a tenth of a 1280-px fill.
+STRANGER_TEST_SIDE = 640
+
+
 def strangers(
     render: np.ndarray,
     target: np.ndarray,
@@ -189,7 +194,8 @@ def strangers(
     that disagree with ``target`` (after the median colour difference there is taken out; over
     ``sc.stranger_threshold``, also with the render shifted by up to 12 px; wide and large enough,
     near the hole) are grown into it by the watershed, against the pixels that agree with the target
-    (under ``sc.stranger_agreement``). ``shape``: the full target's, for pixel scaling.
+    (under ``sc.stranger_agreement``). ``shape``: the full target's, for pixel scaling. Runs with
+    the window's long side at most :data:`STRANGER_TEST_SIDE`.
 
     >>> hole = np.zeros((40, 60), bool); hole[10:30, 20:40] = True
     >>> target = np.full((40, 60, 3), 120, np.uint8); target[hole] = 0
@@ -198,12 +204,36 @@ def strangers(
     >>> bool(out[:, 35:].sum() == hole[:, 35:].sum()), bool(out[:, :34].any())  # (the seam: unlabelled)
     (True, False)
     """
-    ring_px = config_px(sc.stranger_ring_px, shape)
+    h, w = hole.shape
+    f = min(1.0, STRANGER_TEST_SIDE / max(h, w))
+    px = config_px(1.0, shape) * f
+    if f == 1.0:
+        return _strangers(render, target, hole, alpha, px, sc)
+    size = (max(round(w * f), 1), max(round(h * f), 1))
+
+    def small(mask: np.ndarray) -> np.ndarray:
+        return cv2.resize(mask.astype(np.uint8), size, interpolation=cv2.INTER_NEAREST) > 0
+
+    found = _strangers(
+        cv2.resize(render, size, interpolation=cv2.INTER_AREA),
+        cv2.resize(target, size, interpolation=cv2.INTER_AREA),
+        small(hole),
+        small(alpha),
+        px,
+        sc,
+    )
+    return (cv2.resize(found.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) > 0) & alpha & hole
+
+
+def _strangers(
+    render: np.ndarray, target: np.ndarray, hole: np.ndarray, alpha: np.ndarray, px: float, sc: ScreenConfig
+) -> np.ndarray:
+    """:func:`strangers` at the resolution given, ``px`` pixels per config pixel."""
     outside = cv2.distanceTransform((~hole).astype(np.uint8), cv2.DIST_L2, 3)
-    ring = alpha & ~hole & (outside <= ring_px)
+    ring = alpha & ~hole & (outside <= sc.stranger_ring_px * px)
     if not ring.any():
         return np.zeros(hole.shape, bool)
-    k = _odd(config_px(5.0, shape))
+    k = _odd(5.0 * px)
     # The exposure and white balance of the two photos: the median difference around the hole.
     level = target.astype(np.float32) + np.median(render[ring].astype(np.float32) - target[ring], axis=0)
     raw = np.abs(render - level).mean(axis=2)
@@ -211,17 +241,17 @@ def strangers(
     # Both the box mean and the pixel itself: the mean alone spreads a stranger's edge outwards. A
     # render that is only misaligned (depth off at an occlusion edge) agrees once shifted a little;
     # a stranger does not.
-    reach = config_px(12.0, shape)
+    reach = 12.0 * px
     seeds = ring & (diff > sc.stranger_threshold) & (raw > sc.stranger_threshold)
     seeds &= _shifted_min_diff(render, level, k, reach) > sc.stranger_threshold
     # An opening removes the thin lines that misalignment leaves along edges.
-    m = max(3, _odd(config_px(sc.stranger_min_px / 2, shape)))
+    m = max(3, _odd(sc.stranger_min_px / 2 * px))
     seeds = cv2.morphologyEx(seeds.astype(np.uint8), cv2.MORPH_OPEN, np.ones((m, m), np.uint8))
     n, labels, stats, _ = cv2.connectedComponentsWithStats(seeds, connectivity=8)
     # Within the shift's reach of the hole: the band a shift explains lies between.
     near = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (_odd(2 * reach + 3),) * 2)
     touching = cv2.dilate(hole.astype(np.uint8), near) > 0
-    big = stats[:, cv2.CC_STAT_AREA] >= config_px(sc.stranger_min_px, shape) ** 2
+    big = stats[:, cv2.CC_STAT_AREA] >= (sc.stranger_min_px * px) ** 2
     keep = np.zeros(n, bool)
     keep[np.unique(labels[touching & (labels > 0)])] = True
     keep &= big
@@ -330,17 +360,24 @@ def seen_again(
 
 def _shifted_min_diff(render: np.ndarray, target: np.ndarray, k: int, reach_px: float) -> np.ndarray:
     """Per pixel, the smallest box mean (side ``k``) of the absolute difference between ``target``
-    (float32) and ``render`` shifted by up to ``reach_px`` in each direction (steps of a third)."""
-    step = max(1, round(reach_px / 3))
-    r = 3 * step
-    padded = cv2.copyMakeBorder(render, r, r, r, r, cv2.BORDER_REPLICATE).astype(np.float32)
+    (float32) and ``render`` shifted by up to ``reach_px`` in each direction (7 x 7 shifts at most).
+    Computed with the long side at most 256 px: telling misalignment from other content needs no
+    fine detail, and 49 passes at 640 px would cost more than the rest of the screen stage."""
     h, w = render.shape[:2]
-    best = np.full((h, w), np.inf, np.float32)
+    f = min(1.0, 256 / max(h, w))
+    size = (max(round(w * f), 1), max(round(h * f), 1))
+    r_img = cv2.resize(render, size, interpolation=cv2.INTER_AREA).astype(np.float32)
+    t_img = cv2.resize(target, size, interpolation=cv2.INTER_AREA)
+    ks = _odd(k * f)
+    r = max(1, round(reach_px * f))
+    step = max(1, round(r / 3))
+    padded = cv2.copyMakeBorder(r_img, r, r, r, r, cv2.BORDER_REPLICATE)
+    best = np.full(r_img.shape[:2], np.inf, np.float32)
     for dy in range(-r, r + 1, step):
         for dx in range(-r, r + 1, step):
-            shifted = padded[r + dy : r + dy + h, r + dx : r + dx + w]
-            np.minimum(best, cv2.blur(np.abs(shifted - target).mean(axis=2), (k, k)), out=best)
-    return best
+            shifted = padded[r + dy : r + dy + size[1], r + dx : r + dx + size[0]]
+            np.minimum(best, cv2.blur(np.abs(shifted - t_img).mean(axis=2), (ks, ks)), out=best)
+    return cv2.resize(best, (w, h), interpolation=cv2.INTER_LINEAR)
 
 
 def _odd(px: float) -> int:
