@@ -260,8 +260,7 @@ SECTIONS = [
     ),
     Section(
         "optimize_synthetic",
-        "Joint optimisation from a perturbed start, 1280x720 "
-        "(`benchmarks/studies/optimize_bench.py`)",
+        "Joint optimisation from a perturbed start, 1280x720 (`benchmarks/studies/optimize_bench.py`)",
         "Exact depth and pose, start perturbed by 5 deg rotation, 10 deg translation direction, depth x1.2. "
         "`paper` = DiffGrad at a quarter of the paper's iteration limits (1000/1750/2250/2500; the full "
         "limits take up to an hour on one scene here). Objective = the finest level's (lower is better).",
@@ -357,8 +356,7 @@ SECTIONS = [
     ),
     Section(
         "focal_refine",
-        "Focal refinement in the optimisation, synthetic "
-        "(`benchmarks/studies/optimize_bench.py focal`)",
+        "Focal refinement in the optimisation, synthetic (`benchmarks/studies/optimize_bench.py focal`)",
         "Rendered scenes whose true focal is 0.8x / 1.25x the assumed default, filled with and without "
         "`optimize.refine_focal` (estimation off, so the refinement alone moves the focal).",
         [
