@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
+import time
 import typing
 
 import cv2
@@ -44,9 +46,20 @@ def fill_args(d, out, **over):
 def test_fill_writes_output_and_debug(files, tmp_path, capsys):
     d, p = files
     out, dbg = tmp_path / "out.png", tmp_path / "dbg"
+    t0 = time.perf_counter()
     code, err = run([*fill_args(d, out), "--debug-dir", dbg], capsys)
+    wall = time.perf_counter() - t0
     assert code == 0
-    assert any(line.startswith("geofill: match") for line in err)  # progress per stage
+    # The default output is plain: the done fraction, then the line a user needs, with the time the
+    # command took (not the stages' times summed); the stage details are for --verbose.
+    assert not any(re.match(r"geofill: (ref \d+: )?match ", line) for line in err), err
+    *steps, last = err
+    assert steps == [f"geofill: {pct}% done" for pct in (25, 50, 75)]
+    said = re.fullmatch(
+        rf"geofill: wrote {re.escape(str(out))} in (\d+\.\d) s: (\d+)% of the hole from source.png, .*", last
+    )
+    assert said, last
+    assert 0 < float(said[1]) <= wall + 0.05, (said[1], wall)
     result = cv2.cvtColor(cv2.imread(str(out)), cv2.COLOR_BGR2RGB)
     assert np.array_equal(result[~p.hole], p.target[~p.hole])
     assert not np.array_equal(result[p.hole], np.zeros_like(result[p.hole]))
@@ -63,6 +76,16 @@ def test_fill_writes_output_and_debug(files, tmp_path, capsys):
     assert ref["intrinsics_target"]["fx_px"] == pytest.approx(750 * 320 / 1280 * focal["scale_target"])
     assert set(report["timings_s"]) >= {"match", "pose", "depth", "render", "fuse"}
     assert report["config"]["render"]["edge_threshold"] == 0.04
+
+
+def test_verbose_prints_every_stage_with_its_details(files, tmp_path, capsys):
+    d, _ = files
+    code, err = run([*fill_args(d, tmp_path / "o.png"), "--verbose"], capsys)
+    assert code == 0
+    stages = [m[1] for line in err if (m := re.match(r"geofill: (\w+(?: \w+)?) +\d+\.\d\d s", line))]
+    assert stages[:3] == ["check inputs", "prepare", "match"] and stages[-2:] == ["fuse", "composite"]
+    assert any("verified" in line and "matches" in line for line in err)  # the match stage's summary
+    assert err[-1].startswith(f"geofill: wrote {tmp_path / 'o.png'} in ")
 
 
 def test_quiet_prints_nothing(files, tmp_path, capsys):

@@ -26,8 +26,9 @@ pytest.importorskip("fastapi", reason="the server extra is not installed")
 pytest.importorskip("httpx", reason="FastAPI's TestClient needs httpx")
 import psutil
 from fastapi.testclient import TestClient
-from PIL import Image
+from PIL import ExifTags, Image
 
+from geofill.io import read_image
 from geofill.server.app import create_app
 from geofill.server.jobs import ServerSettings
 from geofill.server.schema import config_fields, flatten
@@ -156,10 +157,45 @@ def test_fallback_is_reported_with_its_reason(tmp_path):
         job_id = client.post("/api/v1/fill", files=parts, data={"config": config}).json()["id"]
         snap = wait_for(client, job_id)
         assert snap["state"] == "done" and snap["status"] == "single_image"
-        assert snap["fallbacks"][0].startswith("reference 1: it covers only")
+        # In plain words for the page; the technical reason is in the report.
+        assert snap["fallbacks"] == ["reference 1 was not used: it does not see what is behind the hole"]
+        assert snap["report"]["references"][0]["reason"].startswith("it covers only")
         assert snap["summary"] == "100 % painted"
         out = np.array(Image.open(io.BytesIO(client.get(f"/api/v1/jobs/{job_id}/result").content)))
         assert np.array_equal(out[~pair.hole], pair.target[~pair.hole])
+
+
+def _jpeg_with_lens(a: np.ndarray) -> bytes:
+    exif = Image.Exif()
+    exif[ExifTags.Base.Make], exif[ExifTags.Base.Model] = "Apple", "iPhone 4S"
+    lens = exif.get_ifd(ExifTags.IFD.Exif)
+    lens[ExifTags.Base.FocalLength], lens[ExifTags.Base.FocalLengthIn35mmFilm] = 4.28, 35
+    buf = io.BytesIO()
+    Image.fromarray(a).save(buf, "JPEG", quality=95, exif=exif.tobytes())
+    return buf.getvalue()
+
+
+def test_result_keeps_the_targets_exif_and_progress_only_grows(tmp_path, upload, pair):
+    """Three references: the done fraction the API reports never goes back; the result carries
+    the target's EXIF, so a fill started again from it has the same focal prior."""
+    parts = files(upload, n_sources=3, target=_jpeg_with_lens(upload["target_array"]))
+    app = create_app(ServerSettings(workers=1, temp_parent=str(tmp_path)))
+    with TestClient(app) as client:
+        t0 = time.monotonic()
+        job_id = client.post("/api/v1/fill", files=parts).json()["id"]
+        seen = []
+        while (snap := client.get(f"/api/v1/jobs/{job_id}").json())["state"] in ("queued", "running"):
+            seen.append(snap["progress"])
+            time.sleep(0.01)
+        wall = time.monotonic() - t0
+        assert snap["state"] == "done", snap
+        assert seen == sorted(seen) and len(set(seen)) >= 5, seen
+        assert 0 < snap["wall_s"] <= wall
+        result = client.get(f"/api/v1/jobs/{job_id}/result").content
+    (tmp_path / "result.png").write_bytes(result)
+    (tmp_path / "target.jpg").write_bytes(parts[0][1][1])
+    kept, given = read_image(tmp_path / "result.png").exif, read_image(tmp_path / "target.jpg").exif
+    assert kept == given and kept.focal_mm == 4.28 and kept.body == "Apple iPhone 4S"
 
 
 def test_cancel_terminates_the_running_worker_and_a_dead_worker_fails_its_job(tmp_path, upload):

@@ -24,10 +24,11 @@ from starlette.requests import ClientDisconnect
 
 from ..config import FillConfig
 from ..errors import ConfigError, GeoFillError, ImageTooLargeError
+from ..progress import STAGE_WORDS
 from .jobs import JobManager, QueueFullError, ServerSettings
 from .schema import LOCKED_KEYS, apply_request_config, config_fields, with_config_schema
 from .uploads import SOURCE_MASK_FIELD, UploadError, receive_fill_form
-from .worker import COVERAGE_FILE, RESULT_FILE, STAGES, source_file, source_mask_file
+from .worker import COVERAGE_FILE, RESULT_FILE, source_file, source_mask_file
 
 STATIC = Path(__file__).parent / "static"
 #: Job ids are ``secrets.token_urlsafe(24)``: anything else is unknown without a lookup.
@@ -208,7 +209,7 @@ def create_app(
             "queue_size": settings.queue_size,
             "workers": settings.workers,
             "job_ttl_s": settings.job_ttl_s,
-            "stages": STAGES,
+            "stages": STAGE_WORDS,
         }
 
     @app.post(
