@@ -17,7 +17,7 @@ import pytest
 
 from geofill.batch.runner import exit_status
 from geofill.cli import main
-from geofill.errors import EXIT_FELL_BACK, EXIT_INTERRUPTED, EXIT_ITEMS_FAILED
+from geofill.errors import EXIT_FELL_BACK, EXIT_INTERRUPTED, EXIT_ITEMS_FAILED, EXIT_TERMINATED
 from geofill.synthetic import blanked, make_pair
 
 SEEDS = (3, 5)
@@ -149,30 +149,40 @@ def test_single_fill_allow_fallback_rule(pairs, tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert code == EXIT_FELL_BACK
     assert (tmp_path / "a.png").is_file()  # the result is still written
-    assert len(err) == 1 and err[0].startswith("geofill: fell back to single-image inpainting (")
+    assert len(err) == 1 and err[0].startswith(
+        "geofill: no reference photo could be used, the whole hole was painted from its surroundings "
+        "(reference 1 was not used: it does not show enough of the same scene"
+    ), err
     assert "exit status 5 (--allow-fallback accepts it)" in err[0]
     assert main([str(a) for a in [*argv, "-o", tmp_path / "b.png", "--allow-fallback"]]) == 0
     assert np.array_equal(_read_rgb(tmp_path / "a.png"), _read_rgb(tmp_path / "b.png"))
 
 
-def test_ctrl_c_keeps_finished_items_and_prints_the_summary(pairs, tmp_path):
-    # 24 small items: enough that, under load, the signal lands long before the last one finishes.
+def _start_batch(tmp_path, pairs, *extra):
+    """24 small items in a ``geofill batch`` subprocess, started when its first item is recorded:
+    enough that, under load, a signal lands long before the last one finishes."""
     names = {f"{key}_{i}": key for i in range(12) for key in pairs}
     root, out = _shoot(tmp_path, pairs, names), tmp_path / "out"
     cmd = [sys.executable, "-m", "geofill.cli", "batch", "--images", str(root / "images")]
     cmd += ["--masks", str(root / "masks"), "--sources-per-image", str(root / "refs"), "--out", str(out)]
-    proc = subprocess.Popen([*cmd, "--jobs", "2"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    cmd += ["--jobs", "2", *extra]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     results = out / "results.jsonl"
     deadline = time.monotonic() + 300
     while not (results.is_file() and results.read_text().strip()) and time.monotonic() < deadline:
         assert proc.poll() is None, proc.communicate()
         time.sleep(0.2)
+    return proc, names, out, cmd
+
+
+def test_ctrl_c_keeps_finished_items_and_prints_the_summary(pairs, tmp_path):
+    proc, names, out, _ = _start_batch(tmp_path, pairs)
     proc.send_signal(signal.SIGINT)
     stdout, stderr = proc.communicate(timeout=60)
     assert proc.returncode == EXIT_INTERRUPTED, stderr
     records = _records(out)
     assert 1 <= len(records) < len(names)
-    assert "INTERRUPTED" in stdout and "not run (interrupted)" in stdout
+    assert "STOPPED by Ctrl-C" in stdout and "not run (stopped by Ctrl-C)" in stdout
     for r in records:
         assert r["status"] == "reference"
         p = pairs[names[r["item"]]]
@@ -182,6 +192,29 @@ def test_ctrl_c_keeps_finished_items_and_prints_the_summary(pairs, tmp_path):
         assert f.name == "results.jsonl" or (f.suffix == ".png" and _read_rgb(f).shape == (240, 320, 3)), (
             f.name
         )
+
+
+def test_sigterm_stops_at_once_keeping_finished_items_for_resume(pairs, tmp_path):
+    proc, names, out, cmd = _start_batch(tmp_path, pairs)
+    t0 = time.monotonic()
+    proc.send_signal(signal.SIGTERM)
+    stdout, stderr = proc.communicate(timeout=60)
+    stopped_s = time.monotonic() - t0
+    assert proc.returncode == EXIT_TERMINATED == 143, stderr
+    assert "STOPPED by SIGTERM" in stdout
+    # Within the time a worker takes to die, not after the items in flight finish (seconds each).
+    assert stopped_s < 3.0, stopped_s
+    records = _records(out)
+    assert 1 <= len(records) < len(names)
+    # Every output written is recorded: --resume skips exactly those and runs only the others.
+    written = {f.stem for f in out.glob("*.png")}
+    assert {r["item"] for r in records} == written
+    rerun = subprocess.run([*cmd, "--resume"], capture_output=True, text=True, timeout=600)
+    assert rerun.returncode == 0, rerun.stderr
+    assert f"skipped (already complete)  {len(records):>5d}" in rerun.stdout
+    after = {r["item"]: r for r in _records(out)}
+    assert set(after) == set(names)
+    assert all(after[r["item"]] == r for r in records)  # kept as they were, not run again
 
 
 def test_ray_without_the_extra_is_a_one_line_error(pairs, tmp_path, monkeypatch, capsys):
