@@ -6,12 +6,17 @@ from __future__ import annotations
 import argparse
 import json
 import re
+import struct
+import subprocess
+import sys
 import time
 import typing
+import zlib
 
 import cv2
 import numpy as np
 import pytest
+from PIL import ExifTags, Image
 
 from geofill.cli import build_parser, main
 from geofill.config import DepthConfig, FillConfig, choices
@@ -98,11 +103,25 @@ def _corrupt(path):
     path.write_bytes(b"\x89PNG\r\n\x1a\n" + b"garbage" * 20)
 
 
+def _png_chunk(kind: bytes, data: bytes) -> bytes:
+    return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+
+def _truncated_png(path, rgb):
+    """A PNG of ``rgb`` whose image data is a complete zlib stream holding its first third of rows."""
+    h, w = rgb.shape[:2]
+    rows = b"".join(b"\0" + rgb[y].tobytes() for y in range(h // 3))
+    ihdr = struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0)
+    data = _png_chunk(b"IHDR", ihdr) + _png_chunk(b"IDAT", zlib.compress(rows)) + _png_chunk(b"IEND", b"")
+    path.write_bytes(b"\x89PNG\r\n\x1a\n" + data)
+
+
 @pytest.mark.parametrize(
     ("case", "expected_code", "needle"),
     [
         ("missing", 2, "not found"),
         ("corrupt", 2, "corrupt"),
+        ("truncated", 2, "truncated or corrupt (its image data stops at 33% of its 320x240 pixels)"),
         ("mask_size", 2, "mask is 100x100 but the target"),
         ("empty_mask", 2, "no hole pixel"),
         ("full_mask", 2, "%"),
@@ -122,6 +141,9 @@ def test_bad_input_is_one_line_error_and_writes_nothing(files, tmp_path, capsys,
     elif case == "corrupt":
         _corrupt(tmp_path / "bad.png")
         over["target"] = tmp_path / "bad.png"
+    elif case == "truncated":
+        _truncated_png(tmp_path / "cut.png", p.target)
+        over["target"] = tmp_path / "cut.png"
     elif case == "mask_size":
         cv2.imwrite(str(tmp_path / "m.png"), np.full((100, 100), 255, np.uint8))
         over["mask"] = tmp_path / "m.png"
@@ -147,6 +169,24 @@ def test_bad_input_is_one_line_error_and_writes_nothing(files, tmp_path, capsys,
     assert not out.exists() and not dbg.exists()
     assert sorted(f.name for f in tmp_path.iterdir()) == sorted(
         f.name for f in tmp_path.iterdir() if f.suffix != ".tmp" and not f.name.startswith(".")
+    )
+
+
+def test_a_corrupt_exif_block_is_a_note_not_a_python_warning(files, tmp_path):
+    d, p = files
+    exif = Image.Exif()
+    exif[ExifTags.Base.Make], exif[ExifTags.Base.Model] = "Apple", "iPhone 4S"
+    exif.get_ifd(ExifTags.IFD.Exif)[ExifTags.Base.FocalLength] = 4.28
+    target = tmp_path / "t.jpg"
+    Image.fromarray(p.target).save(target, quality=95, exif=exif.tobytes()[:40])  # cut inside an IFD
+    argv = [*fill_args(d, tmp_path / "o.png", target=target), "--allow-fallback"]
+    run = subprocess.run(
+        [sys.executable, "-m", "geofill.cli", *map(str, argv)], capture_output=True, text=True, timeout=300
+    )
+    assert run.returncode == 0, run.stderr
+    assert "Warning" not in run.stderr and ".py:" not in run.stderr, run.stderr
+    assert run.stderr.splitlines()[0] == (
+        f"geofill: note: {target}: part of its metadata could not be read (Truncated File Read)"
     )
 
 

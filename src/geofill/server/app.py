@@ -261,7 +261,7 @@ def create_app(
             return _error(422, str(exc))
         except ImageTooLargeError as exc:
             shutil.rmtree(folder, ignore_errors=True)
-            return _error(413, _field_names(str(exc), folder) + f" (max_pixels {settings.max_pixels})")
+            return _error(413, _field_names(str(exc), folder))
         except GeoFillError as exc:
             shutil.rmtree(folder, ignore_errors=True)
             return _error(400, _field_names(str(exc), folder))
