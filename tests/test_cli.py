@@ -242,6 +242,16 @@ def test_demo_writes_side_by_side_and_numbers(tmp_path, capsys):
     assert img.shape == (480, 5 * 640, 3)
 
 
+@pytest.mark.parametrize("command", ["", "fill", "batch", "serve", "demo", "config", "models", "eval"])
+def test_help_is_plain_text(command, capsys):
+    with pytest.raises(SystemExit) as stop:
+        main([*filter(None, [command]), "--help"])
+    assert stop.value.code == 0
+    text = capsys.readouterr().out
+    assert text.startswith("usage: geofill")
+    assert not re.search(r"``|:(func|class|mod|data):`", text), text
+
+
 def test_command_exits_with_mains_status(files, tmp_path):
     """``geofill`` (``cli.run``) ends the process with :func:`main`'s status, output flushed."""
     import subprocess

@@ -340,6 +340,33 @@ def test_bad_config_is_422_naming_the_key(idle, upload, config, words):
     assert words in r.json()["detail"]
 
 
+def test_openapi_lists_the_errors_each_route_returns(idle, upload):
+    client, _, _ = idle
+    paths = client.get("/openapi.json").json()["paths"]
+    job = "/api/v1/jobs/{job_id}"
+    listed = {
+        ("post", "/api/v1/fill"): {"202", "400", "413", "415", "422", "429"},
+        ("get", job): {"200", "404"},
+        ("delete", job): {"200", "404"},
+        ("get", f"{job}/result"): {"200", "404", "409"},
+        ("get", f"{job}/coverage"): {"200", "404", "409"},
+    }
+    for (method, path), statuses in listed.items():
+        responses = paths[path][method]["responses"]
+        assert statuses <= set(responses), (method, path, sorted(responses))
+        assert all(responses[s].get("description") for s in statuses)
+    # and they are the statuses these routes answer with
+    assert (
+        client.post("/api/v1/fill", content=b"x", headers={"content-type": "text/plain"}).status_code == 415
+    )
+    unknown = "A" * 32
+    assert client.get(f"/api/v1/jobs/{unknown}").status_code == 404
+    assert client.delete(f"/api/v1/jobs/{unknown}").status_code == 404
+    assert client.get(f"/api/v1/jobs/{unknown}/result").status_code == 404
+    queued = client.post("/api/v1/fill", files=files(upload)).json()["id"]
+    assert client.get(f"/api/v1/jobs/{queued}/coverage").status_code == 409
+
+
 def test_malformed_requests_are_4xx(idle, upload):
     client, _, _ = idle
     assert client.post("/api/v1/fill", json={"target": "x"}).status_code == 415

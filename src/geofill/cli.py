@@ -171,6 +171,9 @@ def cmd_fill(args: argparse.Namespace) -> int:
     metadata = None if args.strip_metadata else target.metadata
     if metadata is not None and metadata.note:
         prog.say(f"note: {args.target}: {metadata.note}")
+    for image in (target, *sources):
+        if image.metadata.unread:
+            prog.say(f"note: {image.path}: {image.metadata.unread}")
     for path, m, masked in zip(source_paths, mask_paths, source_masks, strict=True):
         if masked is not None:
             prog.say(f"{path}: {100 * masked.mean():.0f}% of it is never copied (masked by {m})")

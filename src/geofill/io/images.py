@@ -93,11 +93,13 @@ class ExifCamera:
 class ImageMetadata:
     """What an output carries over from its input file: the EXIF block (orientation reset to 1,
     since the pixels are delivered upright) and the ICC colour profile; None where absent.
-    ``note`` says why EXIF present in the file could not be carried (never dropped silently)."""
+    ``note`` says why EXIF present in the file could not be carried (never dropped silently);
+    ``unread`` what Pillow warned it could not read in the file (a corrupt EXIF block, say)."""
 
     exif: bytes | None = None
     icc_profile: bytes | None = None
     note: str | None = None
+    unread: str | None = None
 
 
 @dataclass
@@ -185,10 +187,9 @@ def _read_raster(
                 f"{p}: cannot decode image, truncated or corrupt ({one_line(exc)})"
             ) from exc
         metadata = _carried_metadata(img, exif, orientation)
-    if heard:  # what Pillow warned about is said once, as a note on the file, not a Python warning
+    if heard:  # said once, as a note on the file, rather than as Python warnings
         said = "; ".join(dict.fromkeys(one_line(w.message) for w in heard))
-        note = "; ".join(filter(None, (metadata.note, f"part of its metadata could not be read ({said})")))
-        metadata = replace(metadata, note=note)
+        metadata = replace(metadata, unread=f"part of its metadata could not be read ({said})")
     return pixels, orientation, camera, metadata
 
 

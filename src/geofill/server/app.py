@@ -63,6 +63,14 @@ _CONFIG_FIELD: dict[str, Any] = {
 }
 
 
+_NO_SUCH_JOB: dict[str, Any] = {"description": "no such job (never created, expired or deleted)"}
+#: The errors of the routes that serve a job's files.
+_JOB_FILE_ERRORS: dict[int | str, dict[str, Any]] = {
+    404: _NO_SUCH_JOB,
+    409: {"description": "the job has no result (queued, running, failed or cancelled)"},
+}
+
+
 def _fill_form(max_sources: int) -> dict[str, Any]:
     """The OpenAPI description of ``POST /api/v1/fill``'s form: one optional ``source_mask_k`` per
     reference this server takes."""
@@ -221,6 +229,7 @@ def create_app(
             202: {"description": "queued; poll the job"},
             400: {"description": "malformed request or input images"},
             413: {"description": "an upload over a byte or pixel limit (named)"},
+            415: {"description": "the body is not multipart/form-data"},
             422: {"description": "bad config (the key is named)"},
             429: {"description": "the queue is full; see Retry-After"},
         },
@@ -280,7 +289,11 @@ def create_app(
     def _unknown() -> JSONResponse:
         return _error(404, "no such job (it may have expired)")
 
-    @app.get("/api/v1/jobs/{job_id}", summary="State, stage, progress; the report when done")
+    @app.get(
+        "/api/v1/jobs/{job_id}",
+        summary="State, stage, progress; the report when done",
+        responses={404: _NO_SUCH_JOB},
+    )
     async def get_job(job_id: str) -> JSONResponse:
         snap = manager().snapshot(job_id) if _job_id_ok(job_id) else None
         return _unknown() if snap is None else JSONResponse(snap)
@@ -300,7 +313,7 @@ def create_app(
         "/api/v1/jobs/{job_id}/result",
         summary="The filled image (PNG, full resolution)",
         response_class=FileResponse,
-        responses={200: {"content": {"image/png": {}}}, 404: {}, 409: {}},
+        responses={200: {"content": {"image/png": {}}}, **_JOB_FILE_ERRORS},
     )
     async def get_result(job_id: str) -> Response:
         return _job_file(job_id, RESULT_FILE)
@@ -309,12 +322,16 @@ def create_app(
         "/api/v1/jobs/{job_id}/coverage",
         summary="Who filled each hole pixel (RGBA PNG: a colour per reference, red = painted)",
         response_class=FileResponse,
-        responses={200: {"content": {"image/png": {}}}, 404: {}, 409: {}},
+        responses={200: {"content": {"image/png": {}}}, **_JOB_FILE_ERRORS},
     )
     async def get_coverage(job_id: str) -> Response:
         return _job_file(job_id, COVERAGE_FILE)
 
-    @app.delete("/api/v1/jobs/{job_id}", summary="Cancel a job (or delete a finished one now)")
+    @app.delete(
+        "/api/v1/jobs/{job_id}",
+        summary="Cancel a job (or delete a finished one now)",
+        responses={404: _NO_SUCH_JOB},
+    )
     async def delete_job(job_id: str) -> JSONResponse:
         snap = await run_in_threadpool(manager().cancel, job_id) if _job_id_ok(job_id) else None
         return _unknown() if snap is None else JSONResponse(snap)
