@@ -3,6 +3,7 @@ bad items among good ones, exit statuses, Ctrl-C; and the single fill's ``--allo
 
 from __future__ import annotations
 
+import io
 import json
 import os
 import shutil
@@ -15,6 +16,7 @@ import cv2
 import numpy as np
 import pytest
 
+from geofill.batch.display import BatchDisplay, summary_table
 from geofill.batch.runner import exit_status
 from geofill.cli import main
 from geofill.errors import EXIT_FELL_BACK, EXIT_INTERRUPTED, EXIT_ITEMS_FAILED, EXIT_TERMINATED
@@ -136,6 +138,39 @@ def test_batch_fallbacks_exit_5_unless_allowed(pairs, tmp_path):
     assert r["status"] == "single_image" and r["references"] == []
     assert r["fallback_reason"].startswith("no candidate reference has 20 verified matches near the hole")
     assert r["candidates"][0]["picked"] is False
+
+
+def test_results_say_which_reference_was_dropped_and_why(pairs, tmp_path, capsys):
+    p = pairs["t3"]
+    root = _shoot(tmp_path, {"t3": p})
+    noise = root / "refs" / "t3" / "zz_noise.png"
+    _write_rgb(noise, _noise(p.source.shape))
+    out = tmp_path / "out"
+    assert _batch(root, out, "--sources-per-image", root / "refs", "--jobs", "1") == 0
+    (r,) = _records(out)
+    assert r["status"] == "reference"
+    assert r["references"] == [str(root / "refs" / "t3" / "view.png"), str(noise)]  # both were given
+    (dropped,) = r["references_dropped"]
+    assert dropped["reference"] == str(noise)
+    assert dropped["reason"] == "it does not show enough of the same scene"  # plain words
+    assert dropped["detail"]  # the technical reason, for whoever debugs
+    line = capsys.readouterr().err
+    assert "of the hole filled from 1 reference(s); 1 reference(s) not used" in line
+
+
+def test_rate_counts_only_items_that_were_filled():
+    stream = io.StringIO()
+    display = BatchDisplay(3, stream)
+    failed = {"item": "a", "status": "failed", "error": "a.png: no mask with stem 'a'"}
+    display.update(failed)  # at once, before any fill: no rate to speak of yet
+    assert stream.getvalue() == "geofill: [1/3] a: FAILED: a.png: no mask with stem 'a'\n"
+    display.t0 -= 30.0  # as if the next item took 30 s
+    display.update({"item": "b", "status": "reference", "references": ["r.png"], "coverage": 0.9})
+    assert stream.getvalue().splitlines()[1].endswith("| 2.0 fills/min, ETA 30s")
+    table = summary_table(
+        [failed], total=3, skipped=0, elapsed_s=0.02, jobs="1 job(s)", results_path="r", interrupted=False
+    )
+    assert "fills/min" not in table.splitlines()[0]
 
 
 def test_single_fill_allow_fallback_rule(pairs, tmp_path, capsys):

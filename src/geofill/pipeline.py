@@ -70,7 +70,7 @@ DROPPED_WORDS: dict[str, str] = {
     "prepare": "it could not be prepared for matching",
     "match": "it does not show enough of the same scene",
     "focal": "it does not show enough of the same scene",
-    "pose": "it does not show enough of the same scene from a usable viewpoint",
+    "pose": "it does not show enough of the same scene",
     "triangulate": "the scene's depth could not be measured from it",
     "depth": "the scene's depth could not be measured from it",
     "optimize": "the scene's depth could not be measured from it",
