@@ -304,7 +304,10 @@ def _check_png_rows(fh: IO[bytes]) -> None:
         if kind != b"IDAT":
             continue
         while data and got < expected:
-            got += len(inflate.decompress(data, 1 << 20))
+            try:
+                got += len(inflate.decompress(data, 1 << 20))
+            except zlib.error as exc:  # Pillow decodes without checking, so this is news
+                raise ValueError(f"its image data is corrupt ({exc})") from exc
             data = inflate.unconsumed_tail
     if got < expected:
         raise ValueError(
