@@ -403,6 +403,10 @@ def test_validate_pair_mask_errors():
     target, mask, source = _pair()
     with pytest.raises(MaskSizeError, match=r"^m\.png: mask is 99x80 but the target t\.png is 100x80$"):
         io.validate_pair(target, mask[:, :99], source, names=("t.png", "m.png", "s.png"))
+    with pytest.raises(
+        MaskSizeError, match=r"^mask: mask is 99x80 but the target is 100x80$"
+    ):  # not "target target"
+        io.validate_pair(target, mask[:, :99], source)
     with pytest.raises(EmptyMaskError, match=r"^mask: mask marks no hole pixel"):
         io.validate_pair(target, np.zeros_like(mask), source)
     big = np.ones_like(mask)
