@@ -201,7 +201,11 @@ def _start_batch(tmp_path, pairs, *extra):
     cmd = [sys.executable, "-m", "geofill.cli", "batch", "--images", str(root / "images")]
     cmd += ["--masks", str(root / "masks"), "--sources-per-image", str(root / "refs"), "--out", str(out)]
     cmd += ["--jobs", "2", *extra]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    # A session of its own, so that a signal can go to the whole process group as a service manager
+    # sends it (the workers get it too).
+    proc = subprocess.Popen(
+        cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True
+    )
     results = out / "results.jsonl"
     deadline = time.monotonic() + 300
     while not (results.is_file() and results.read_text().strip()) and time.monotonic() < deadline:
@@ -229,10 +233,14 @@ def test_ctrl_c_keeps_finished_items_and_prints_the_summary(pairs, tmp_path):
         )
 
 
-def test_sigterm_stops_at_once_keeping_finished_items_for_resume(pairs, tmp_path):
+@pytest.mark.parametrize("to", ["batch", "group"])
+def test_sigterm_stops_at_once_keeping_finished_items_for_resume(pairs, tmp_path, to):
     proc, names, out, cmd = _start_batch(tmp_path, pairs)
     t0 = time.monotonic()
-    proc.send_signal(signal.SIGTERM)
+    if to == "group":
+        os.killpg(proc.pid, signal.SIGTERM)
+    else:
+        proc.send_signal(signal.SIGTERM)
     stdout, stderr = proc.communicate(timeout=60)
     stopped_s = time.monotonic() - t0
     assert proc.returncode == EXIT_TERMINATED == 143, stderr
@@ -241,9 +249,15 @@ def test_sigterm_stops_at_once_keeping_finished_items_for_resume(pairs, tmp_path
     assert stopped_s < 3.0, stopped_s
     records = _records(out)
     assert 1 <= len(records) < len(names)
-    # Every output written is recorded: --resume skips exactly those and runs only the others.
+    # A worker's fill cut short by the signal is no failed item: every record is a finished fill.
+    assert all(r["status"] == "reference" for r in records), records
+    # Every output written is recorded, and nothing else is left (no temporary file of a write).
     written = {f.stem for f in out.glob("*.png")}
     assert {r["item"] for r in records} == written
+    assert {f.name for f in out.iterdir()} == {"results.jsonl"} | {f"{n}.png" for n in written}
+    if to == "group":
+        return
+    # --resume skips exactly those and runs only the others.
     rerun = subprocess.run([*cmd, "--resume"], capture_output=True, text=True, timeout=600)
     assert rerun.returncode == 0, rerun.stderr
     assert f"skipped (already complete)  {len(records):>5d}" in rerun.stdout

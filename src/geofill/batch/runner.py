@@ -36,6 +36,7 @@ from ..errors import (
     OutputError,
     Terminated,
 )
+from ..io import remove_partial_writes
 from .display import BatchDisplay, summary_table
 from .items import BatchItem
 from .worker import (
@@ -49,6 +50,8 @@ from .worker import (
 )
 
 RESULTS_NAME = "results.jsonl"
+#: Seconds a terminated worker has to unwind before it is killed.
+TERMINATE_GRACE_S = 0.5
 #: Times Ray runs a task again after its worker process died (Ray's own retry).
 RAY_MAX_RETRIES = 3
 
@@ -270,25 +273,31 @@ def _run_local(tasks: Sequence[Task], out_dir: str, on_record: OnRecord, *, jobs
                     pool = ProcessPoolExecutor(jobs, mp_context=ctx, initializer=init_worker)
         except STOPPED:
             _terminate_workers(pool)
-            # Items that finished while the signal came: their outputs are written, so record them.
-            for future, _ in running.items():
+            for future, (item, _) in running.items():
+                # Items that finished while the signal came: their outputs are written, record them.
                 if future.done() and not future.cancelled() and future.exception() is None:
                     on_record(future.result())
+                elif item.output:  # a worker killed mid-write leaves its temporary file
+                    remove_partial_writes(Path(out_dir) / item.output)
             raise
         pool.shutdown(wait=True)
 
 
 def _terminate_workers(pool: ProcessPoolExecutor) -> None:
-    """Stop at once: queued items are cancelled, running ones terminated (their SIGTERM handler
-    unwinds, so the atomic writer removes its temporary file)."""
+    """Stop at once: queued items are cancelled, running ones terminated. Their SIGTERM handler
+    unwinds (the atomic writer removes its temporary file), but only once the compiled call it
+    lands in returns, which can take seconds: a worker still alive after :data:`TERMINATE_GRACE_S`
+    is killed, and the caller removes what its write left."""
     pool.shutdown(wait=False, cancel_futures=True)
     children = multiprocessing.active_children()
     for p in children:
         p.terminate()
+    deadline = time.monotonic() + TERMINATE_GRACE_S
     for p in children:
-        p.join(timeout=10)
+        p.join(timeout=max(0.0, deadline - time.monotonic()))
         if p.is_alive():
             p.kill()
+            p.join()
 
 
 def _failed(item: BatchItem, cfg: FillConfig, out_dir: str, reason: str) -> dict[str, Any]:

@@ -113,7 +113,14 @@ def init_worker() -> None:
     single_threaded()
 
 
+#: Set when this worker process is being terminated: whatever the unwinding raises from then on (a
+#: compiled kernel turns the SystemExit into a SystemError) ends the process, it is no item's error.
+_terminating = False
+
+
 def _exit_on_terminate(signum: int, frame: Any) -> None:
+    global _terminating
+    _terminating = True
     raise SystemExit(128 + signum)
 
 
@@ -155,6 +162,8 @@ def run_item(item: BatchItem, cfg: FillConfig, out_dir: str) -> dict[str, Any]:
         except GeoFillError as exc:
             record["error"] = str(exc)
         except Exception as exc:  # a fill that raises must not stop the batch: record it
+            if _terminating:
+                raise SystemExit(128 + signal.SIGTERM) from exc
             where = traceback.extract_tb(exc.__traceback__)[-1]
             record["error"] = (
                 f"{item.where}: {type(exc).__name__}: {exc} (at {Path(where.filename).name}:{where.lineno})"
