@@ -102,8 +102,9 @@ SECTIONS = [
         "removal_strangers",
         "Object removal, strangers in the references (`geofill eval --protocol strangers`)",
         "Cutouts pasted into the references over 30-60 % of where the hole's background appears in them; "
-        "the target's hole shows another cutout. Nothing in the target shows the strangers, so the screen "
-        "stage cannot refuse them (measured: docs/architecture.md).",
+        "the target's hole shows another cutout. The screen stage refuses the render content that continues "
+        "a stranger reaching beyond the hole (where the render disagrees with the target around it); a "
+        "stranger wholly inside the hole's footprint is not caught (docs/architecture.md).",
         _eval(
             "{out}",
             "--protocol",
@@ -188,7 +189,7 @@ SECTIONS = [
     ),
     Section(
         "refine_eval",
-        "Refinement ablation on the real pairs (`geofill eval`, issue 6)",
+        "Refinement ablation on the real pairs (`geofill eval`)",
         "The render pasted as is (`no_refine`), residual flow only (`flow`), colour only (`colour`: smooth "
         "gain, no flow), and each colour model with the flow (`global` gain+offset, `poisson`); `geofill` is "
         "the default (smooth gain + flow). Each method runs the whole pipeline, so earlier stages may differ "
@@ -229,7 +230,7 @@ SECTIONS = [
     ),
     Section(
         "depth_eval",
-        "Depth accuracy per backend (`benchmarks/studies/depth_eval.py`, issue 4)",
+        "Depth accuracy per backend (`benchmarks/studies/depth_eval.py`)",
         "The paper's supplement depth table: AbsRel, RMS-log and delta<1.25 of the source depth the pipeline "
         "renders with (after its own scale/offset), over all valid pixels and over those that project into "
         "the hole; synthetic scenes (exact depth) and the real pairs with GT depth. `onnx`/`fused` need "
@@ -245,7 +246,7 @@ SECTIONS = [
     ),
     Section(
         "depth_backends",
-        "Fill quality per depth backend (`geofill eval`, issue 4)",
+        "Fill quality per depth backend (`geofill eval`)",
         "`geofill` = `auto` (here: stereo, no weights); `geofill_fused` fails without weights and is "
         "recorded as failed, not skipped.",
         _eval("{out}", "--methods", "homography,geofill_sparse,geofill_stereo,geofill_fused,geofill"),
@@ -253,14 +254,14 @@ SECTIONS = [
     ),
     Section(
         "stereo_speed",
-        "Stereo backend time at 1280x720 (`benchmarks/speed/stereo_speed.py`, issue 4)",
+        "Stereo backend time at 1280x720 (`benchmarks/speed/stereo_speed.py`)",
         "Budget: 2 s on this 2-core machine.",
         [PY, "benchmarks/speed/stereo_speed.py"],
     ),
     Section(
         "optimize_synthetic",
         "Joint optimisation from a perturbed start, 1280x720 "
-        "(`benchmarks/studies/optimize_bench.py`, issue 5)",
+        "(`benchmarks/studies/optimize_bench.py`)",
         "Exact depth and pose, start perturbed by 5 deg rotation, 10 deg translation direction, depth x1.2. "
         "`paper` = DiffGrad at a quarter of the paper's iteration limits (1000/1750/2250/2500; the full "
         "limits take up to an hour on one scene here). Objective = the finest level's (lower is better).",
@@ -268,14 +269,14 @@ SECTIONS = [
     ),
     Section(
         "optimize_real",
-        "Joint optimisation on the real pairs (`benchmarks/studies/optimize_bench.py real`, issue 5)",
+        "Joint optimisation on the real pairs (`benchmarks/studies/optimize_bench.py real`)",
         "Both solvers from the pipeline's own start (evaluation hole, seed 0); `paper` at a tenth of its "
         "iteration limits. Pose errors against the GT pose where meta.json has one (before = the start).",
         [PY, "benchmarks/studies/optimize_bench.py", "real", "--paper-scale", "0.1"],
     ),
     Section(
         "optimize_eval",
-        "Optimisation variants and the paper's ablations (`geofill eval`, issue 5)",
+        "Optimisation variants and the paper's ablations (`geofill eval`)",
         "Same depth for every method (`optimize_bench.py eval` memoises the depth stage per pair). "
         "`geofill_paper` at a tenth of the paper's iteration limits. The paper's own numbers (RealEstate10K, "
         "with CST, whole-image PSNR): init 30.66, optimised 31.47; without L_photo / L_feat / L_negD 31.19 / "
@@ -332,7 +333,7 @@ SECTIONS = [
     ),
     Section(
         "focal",
-        "Focal length from the pair (`benchmarks/studies/focal_bench.py`, issue 7)",
+        "Focal length from the pair (`benchmarks/studies/focal_bench.py`)",
         "Focal and pose accuracy per estimator on the GT pairs and rendered scenes, then whole fills with "
         "the evaluation's masks (seeds 0-2): fixed focal, estimated (default), refined in the "
         "optimisation, true K, and the fixed focal x0.98 / x1.02 (how much a 2 % focal change moves a fill).",
@@ -340,7 +341,7 @@ SECTIONS = [
     ),
     Section(
         "focal_curve",
-        "Fill PSNR against the focal length (`benchmarks/studies/focal_bench.py --curve`, issue 7)",
+        "Fill PSNR against the focal length (`benchmarks/studies/focal_bench.py --curve`)",
         "Hole PSNR per mask seed with the focal fixed at a grid of scales of the default, on the pair where "
         "the estimate lost most against the default (ETH3D terrace, no ground truth) and on two GT pairs; "
         "'estim.' is the default pipeline at the scale it chose. How far apart neighbouring focal lengths "
@@ -357,7 +358,7 @@ SECTIONS = [
     Section(
         "focal_refine",
         "Focal refinement in the optimisation, synthetic "
-        "(`benchmarks/studies/optimize_bench.py focal`, issue 7)",
+        "(`benchmarks/studies/optimize_bench.py focal`)",
         "Rendered scenes whose true focal is 0.8x / 1.25x the assumed default, filled with and without "
         "`optimize.refine_focal` (estimation off, so the refinement alone moves the focal).",
         [

@@ -415,6 +415,33 @@ def test_config_endpoints_and_docs_come_from_fillconfig(idle):
     assert limits["max_sources"] == 3 and "match" in limits["stages"]
 
 
+def test_page_fields_carry_bounds_sections_and_the_common_keys(idle):
+    """Each number's allowed range (a list's: its items' and its length) as the config declares it,
+    the sections in the pipeline's order with their descriptions, and the keys a form offers first."""
+    from geofill.config import FillConfig, GeometryConfig
+
+    client, _, _ = idle
+    body = client.get("/api/v1/config/fields").json()
+    fields = {f["key"]: f for f in body["fields"]}
+    closed = {"lo_open": False, "hi_open": False}
+    assert fields["matching.ratio"]["range"] == {"lo": 0, "hi": 1, **closed}
+    assert fields["working_max_side"]["range"] == {"lo": 64, "hi": 16384, **closed}
+    assert fields["intrinsics.focal_px"]["range"] == {"lo": 0, "hi": 1e6, "lo_open": True, "hi_open": False}
+    target = fields["intrinsics.target"]
+    assert target["length"] == [4, 4] and target["range"]["lo_open"] and target["range"]["lo"] == 0
+    assert fields["optimize.edge_blur_kernels"]["range"] == {"lo": 1, "hi": 255, **closed}
+    assert fields["depth.backend"]["range"] is None and fields["depth.backend"]["length"] is None
+    numbers = [k for k, f in fields.items() if f["kind"] in ("int", "float")]
+    assert len(numbers) > 80 and all(fields[k]["range"] for k in numbers)  # every number is bounded
+    hints = typing.get_type_hints(FillConfig)
+    sections = [f.name for f in dataclasses.fields(FillConfig) if dataclasses.is_dataclass(hints[f.name])]
+    assert [s["key"] for s in body["sections"]] == sections
+    geometry = next(s for s in body["sections"] if s["key"] == "geometry")
+    assert geometry["description"] == GeometryConfig.__doc__.strip()
+    assert 4 <= len(body["common"]) <= 8
+    assert all(k in fields and not fields[k]["locked"] for k in body["common"])
+
+
 def test_page_and_its_files_are_served_without_external_references(idle):
     client, _, _ = idle
     page = client.get("/")

@@ -521,7 +521,7 @@ class OptimizeConfig:
     )
     refine_focal: bool = setting(
         False,
-        "Refine a focal scale shared by both images as an extra parameter (issue 7); off = the paper.",
+        "Refine a focal scale shared by both images as an extra parameter; off = the paper.",
     )
     focal_prior_weight: Annotated[float, Range(0, 1e6)] = setting(
         0.01,
@@ -736,6 +736,26 @@ class ScreenConfig:
         6.0,
         "The appearance test judges only patches of the hole's content whose grey standard deviation (0-255) "
         "is above this: on a flat patch the object and the background cannot be told apart.",
+    )
+    stranger_threshold: Annotated[float, Range(0, 255)] = setting(
+        45.0,
+        "Render pixels around the hole that differ from the target by more than this (mean absolute "
+        "difference, 0-255, over a 5-px box, the median colour difference there taken out) show something "
+        "the target does not show there (a passer-by, a car that moved): what continues them into the hole "
+        "is refused; 0 turns the test off.",
+    )
+    stranger_agreement: Annotated[float, Range(0, 255)] = setting(
+        15.0,
+        "Render pixels around the hole that differ from the target by less than this agree with it: the "
+        "refused region grows into the hole only until it meets content continuing them.",
+    )
+    stranger_ring_px: Annotated[float, Range(1, 1000)] = setting(
+        64.0, "How far around the hole (px) the render is compared with the target for that test."
+    )
+    stranger_min_px: Annotated[float, Range(1, 1000)] = setting(
+        8.0,
+        "Disagreeing regions thinner than half of this or smaller than its square (px) are misalignment at "
+        "edges, not content: they start no refusal.",
     )
 
 

@@ -218,6 +218,7 @@ class FillReport:
         why = {
             "removed_object": "the references showed the removed object",
             "masked": "it was masked in the references",
+            "stranger": "the references showed something there that your photo does not show around it",
         }
         parts = [
             f"{100 * f:.0f}% of the hole was not copied because {why[k]}"
@@ -305,7 +306,7 @@ def run_reference(
         "optimize": lambda a: optimize_geometry(a.views, a.focal, a.pose, a.depth, a.matches, cfg.optimize),
         "render": lambda a: render_reference(a.geometry, a.source, ctx.hole, cfg.render, render_margin_px(cfg)),
         "refine": lambda a: refine_render(ctx.target, ctx.hole, a.source, a.render.render, cfg.refine),
-        "screen": lambda a: screen_render(a.refined, ctx.hole, a.source, ctx.shown, a.exclude, a.views, a.matches, a.focal, a.pose, cfg),
+        "screen": lambda a: screen_render(a.refined, ctx.target, ctx.hole, a.source, ctx.shown, a.exclude, a.views, a.matches, a.focal, a.pose, cfg),
     }  # fmt: skip
     for i, (stage, name) in enumerate(REFERENCE_STAGES):
         if a.dropped:
@@ -531,7 +532,11 @@ def composite(ctx: FillContext, fusion: Fusion) -> np.ndarray:
 def _refused_fractions(hole: np.ndarray, used: list[ReferenceArtifacts]) -> dict[str, float]:
     """Of the hole, where any reference's render was refused, per reason."""
     out = {}
-    for key, name in (("removed_object", "refused_object"), ("masked", "refused_masked")):
+    for key, name in (
+        ("removed_object", "refused_object"),
+        ("masked", "refused_masked"),
+        ("stranger", "refused_stranger"),
+    ):
         masks = [getattr(r.screened, name) for r in used if getattr(r.screened, name) is not None]
         if masks:
             out[key] = float(np.count_nonzero(np.logical_or.reduce(masks) & hole)) / max(int(hole.sum()), 1)

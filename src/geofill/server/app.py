@@ -5,6 +5,7 @@ serves the Swagger UI files it ships, the page is plain HTML/JS/CSS in ``static/
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import re
 import shutil
@@ -26,7 +27,14 @@ from ..config import FillConfig
 from ..errors import ConfigError, GeoFillError, ImageTooLargeError
 from ..progress import STAGE_WORDS
 from .jobs import JobManager, QueueFullError, ServerSettings
-from .schema import LOCKED_KEYS, apply_request_config, config_fields, with_config_schema
+from .schema import (
+    COMMON_KEYS,
+    LOCKED_KEYS,
+    apply_request_config,
+    config_fields,
+    config_sections,
+    with_config_schema,
+)
 from .uploads import SOURCE_MASK_FIELD, UploadError, receive_fill_form
 from .worker import COVERAGE_FILE, RESULT_FILE, source_file, source_mask_file
 
@@ -187,6 +195,9 @@ def create_app(
 
     @app.get("/api/v1/config/fields", summary="The fill config as a flat list of fields (for forms)")
     async def get_fields() -> dict[str, Any]:
+        """Each key with its kind, default, bounds (``range``: a number's, or each list item's;
+        ``length``: a list's item count), choices and description; ``sections`` describes each
+        section in pipeline order; ``common`` lists the keys a form offers first."""
         defaults = base.to_dict()
         rows = []
         for f in config_fields():
@@ -203,9 +214,16 @@ def create_app(
                     "choices": list(f.choices),
                     "description": f.description,
                     "locked": f.locked,
+                    "range": dataclasses.asdict(f.range) if f.range else None,
+                    "length": [f.length.lo, f.length.hi] if f.length else None,
                 }
             )
-        return {"fields": rows, "locked": sorted(LOCKED_KEYS)}
+        return {
+            "fields": rows,
+            "sections": [{"key": k, "description": d} for k, d in config_sections()],
+            "common": list(COMMON_KEYS),
+            "locked": sorted(LOCKED_KEYS),
+        }
 
     @app.get("/api/v1/limits", summary="Upload and queue limits of this server")
     async def get_limits() -> dict[str, Any]:
