@@ -186,7 +186,7 @@ def test_single_fill_allow_fallback_rule(pairs, tmp_path, capsys):
     assert (tmp_path / "a.png").is_file()  # the result is still written
     assert len(err) == 1 and err[0].startswith(
         "geofill: no reference photo could be used, the whole hole was painted from its surroundings "
-        "(reference 1 was not used: it does not show enough of the same scene"
+        "(reference 1 (noise.png) was not used: it does not show enough of the same scene"
     ), err
     assert "exit status 5 (--allow-fallback accepts it)" in err[0]
     assert main([str(a) for a in [*argv, "-o", tmp_path / "b.png", "--allow-fallback"]]) == 0

@@ -177,7 +177,10 @@ def cmd_fill(args: argparse.Namespace) -> int:
     for path, m, masked in zip(source_paths, mask_paths, source_masks, strict=True):
         if masked is not None:
             prog.say(f"{path}: {100 * masked.mean():.0f}% of it is never copied (masked by {m})")
-    result = fill_loaded(target, mask, sources, cfg, source_masks=source_masks, progress=prog)
+    names = [Path(p).name for p in source_paths]
+    result = fill_loaded(
+        target, mask, sources, cfg, source_masks=source_masks, source_names=names, progress=prog
+    )
     write_image_atomic(args.output, result.image, metadata=metadata, quality=args.quality)
     if args.debug_dir:
         write_debug(args.debug_dir, result, mask, cfg)
@@ -185,7 +188,7 @@ def cmd_fill(args: argparse.Namespace) -> int:
     refused = r.refused_words()
     prog.say(
         f"wrote {args.output} in {time.perf_counter() - started:.1f} s: "
-        f"{r.filled_words([Path(p).name for p in source_paths])}" + (f"; {refused}" if refused else "")
+        f"{r.filled_words(names)}" + (f"; {refused}" if refused else "")
     )
     if r.status == "reference" or args.allow_fallback:
         return 0

@@ -104,6 +104,7 @@ class ReferenceArtifacts:
     source: np.ndarray  # HxWx3 uint8 as given
     exif: ExifLens | None = None
     exclude: np.ndarray | None = None  # HxW bool at the source's size: pixels never to copy
+    name: str = ""  # what the user calls it (its file name), for the plain messages
     views: WorkingViews | None = None
     matches: Matches | None = None
     focal: FocalEstimate | None = None
@@ -131,6 +132,8 @@ class ReferenceArtifacts:
     def report(self) -> dict[str, Any]:
         """This reference's report: every stage reached, by stage name, plus the intrinsics used."""
         out: dict[str, Any] = {"index": self.index, "status": "dropped" if self.dropped else "used"}
+        if self.name:
+            out["name"] = self.name
         out["reason"] = self.dropped
         if self.dropped:
             out["reason_words"] = self.dropped_words
@@ -186,7 +189,7 @@ class FillReport:
         ['reference 2 was not used: it is blurred']
         """
         return [
-            f"reference {r['index']} was not used: {r['reason_words']}"
+            f"{_label(r['index'], r.get('name', ''))} was not used: {r['reason_words']}"
             for r in self.references
             if r.get("status") == "dropped"
         ]
@@ -319,13 +322,18 @@ def run_reference(
             except ReferenceUnusable as exc:
                 a = replace(a, dropped=str(exc), dropped_at=stage)
                 prog.detail(f"reference {a.index} cannot help: {exc}")
-                prog.say(f"reference {a.index} was not used: {a.dropped_words}")
+                prog.say(f"{_label(a.index, a.name)} was not used: {a.dropped_words}")
                 prog.advance(len(REFERENCE_STAGES) - i)  # this stage and the ones it will not run
             else:
                 a = replace(a, **{name: result})
         if stage == until:
             break
     return replace(a, timings_s={**ref.timings_s, **prog.timings})
+
+
+def _label(index: int, name: str) -> str:
+    """How the plain messages name a reference: "reference 2", or "reference 2 (left.jpg)"."""
+    return f"reference {index} ({name})" if name else f"reference {index}"
 
 
 def usable_pose(pose: PoseEstimate) -> PoseEstimate:
@@ -386,13 +394,15 @@ def fill(
     target_exif: ExifLens | None = None,
     source_exifs: Sequence[ExifLens | None] | None = None,
     source_masks: Sequence[np.ndarray | None] | None = None,
+    source_names: Sequence[str] | None = None,
     progress: Progress | None = None,
 ) -> FillResult:
     """Fill the hole ``mask`` (True/255 = hole) of ``target`` with content from ``sources``.
 
     What the hole shows is what the user removes: reference content that shows it again is not
     copied (``screen.removed_object``). ``source_masks`` (one per source, None for none; True/255 =
-    masked) mark what must never be copied from each reference.
+    masked) mark what must never be copied from each reference; ``source_names`` (their file names,
+    say) name them in the plain messages.
 
     ``sources`` is one image or a sequence of them (other photos of the scene), each with its own
     entry in ``source_exifs``. Images are HxWx3 uint8 RGB (other dtypes/channels are normalised);
@@ -427,7 +437,8 @@ def fill(
     for i, (s, e, m) in enumerate(zip(images, exifs, masks, strict=True)):
         source = as_rgb_uint8(s)
         exclude = None if m is None else as_source_mask(m, source, f"mask of source {i + 1}")
-        refs.append(ReferenceArtifacts(i + 1, source, e, exclude))
+        name = source_names[i] if source_names is not None else ""
+        refs.append(ReferenceArtifacts(i + 1, source, e, exclude, name=name))
     if shares_camera(ctx, refs):
         refs = _run_references(ctx, refs, prog, until="match")
         with prog.stage("shared focal") as notes:
@@ -457,6 +468,7 @@ def fill_loaded(
     config: FillConfig | None = None,
     *,
     source_masks: Sequence[np.ndarray | None] | None = None,
+    source_names: Sequence[str] | None = None,
     progress: Progress | None = None,
 ) -> FillResult:
     """:func:`fill` on images read with :func:`geofill.io.read_image`, each with its EXIF lens: the
@@ -469,6 +481,7 @@ def fill_loaded(
         target_exif=target.exif,
         source_exifs=[s.exif for s in sources],
         source_masks=source_masks,
+        source_names=source_names,
         progress=progress,
     )
 
