@@ -32,7 +32,7 @@ from PIL import ExifTags, Image
 from geofill.io import read_image
 from geofill.server.app import create_app
 from geofill.server.jobs import ServerSettings
-from geofill.server.schema import config_fields, flatten
+from geofill.server.schema import LOCKED_KEYS, config_fields, flatten
 from geofill.synthetic import blanked, make_pair
 
 W, H = 320, 240
@@ -392,6 +392,17 @@ def test_unknown_or_path_like_job_ids_are_404(idle, job_id):
     for suffix in ("", "/result", "/coverage"):
         assert client.get(f"/api/v1/jobs/{job_id}{suffix}").status_code == 404
     assert client.delete(f"/api/v1/jobs/{job_id}").status_code == 404
+
+
+def test_no_request_names_a_server_file_or_starts_a_download(idle, upload):
+    """Every key that reads a file on the server or downloads during a fill is locked, so a new
+    such key cannot slip through unlocked."""
+    client, _, _ = idle
+    risky = [f.key for f in config_fields() if f.key.endswith(("_model", "_path", ".download"))]
+    assert {"matching.learned_model", "matching.download", "depth.model_path"} <= set(risky)
+    assert set(risky) <= LOCKED_KEYS
+    r = client.post("/api/v1/fill", files=files(upload), data={"config": '{"matching": {"download": true}}'})
+    assert r.status_code == 422 and "matching.download" in r.json()["detail"]
 
 
 def test_config_endpoints_and_docs_come_from_fillconfig(idle):

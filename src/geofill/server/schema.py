@@ -26,6 +26,8 @@ LOCKED_KEYS = frozenset(
         "depth.file_path",
         "depth.model_path",
         "depth.download",
+        "matching.learned_model",
+        "matching.download",
         "inpaint.lama_model",
         "inpaint.download",
         "max_pixels",
