@@ -1,17 +1,23 @@
-"""The matching ladder: plain SIFT first; while the verified geometry is weak (too few inliers, or
-too little of the hole's surroundings near an inlier), climb to costlier matching, and stop at the
-first rung whose geometry verifies or when the time budget is spent.
+"""The matching ladder: plain SIFT first, cross-checked by a learned matcher when one is installed;
+while the verified geometry is weak (too few inliers, or too little of the hole's surroundings
+near an inlier), climb to costlier matching, and stop at the first rung whose geometry verifies or
+when the time budget is spent. A reference that shows another scene (almost nothing verifies on
+the first two rungs) is given up at once instead of climbing.
 
 Rungs (``MatchingConfig.max_rung`` caps the climb):
 
 ``sift``: SIFT, RootSIFT descriptors, ratio test + mutual nearest neighbours, fundamental matrix
 by a robust estimator (OpenCV USAC MAGSAC++ by default). What every easy pair uses, unchanged.
 
+``learned`` (``matching.learned``: by default whenever the ``learned`` extra is installed):
+XFeat + LighterGlue (:mod:`geofill.match.xfeat`) or an ONNX matcher graph
+(:mod:`geofill.match.learned`). It runs even after SIFT verified: repeated structure gives SIFT
+many verified but wrong matches (the fox's wallpaper: 86 verified, a 62-degree pose error). When
+both rungs verify, the geometry that more of both rungs' matches around the hole fit is kept
+(:meth:`_Ladder.choose`), and the report says which and why.
+
 ``loose``: more SIFT keypoints and a looser ratio test (more true matches on wide baselines, and
 more outliers), verified more strictly: a tighter inlier threshold.
-
-``learned`` (only when ``matching.learned`` asks for it): an end-to-end keypoint + matcher ONNX
-graph (:mod:`geofill.match.learned`), verified as strictly as ``loose``.
 
 ``asift``: affine-simulated SIFT (ASIFT, OpenCV ``AffineFeature``): each image is re-detected under
 simulated camera tilts, which recovers the matches that a strong viewpoint change destroys for
@@ -48,7 +54,11 @@ ROBUST_METHODS = {"magsac": cv2.USAC_MAGSAC, "ransac": cv2.RANSAC, "lmeds": cv2.
 #: Fewer tentative matches than this cannot support a fundamental matrix fit (8-point + margin).
 MIN_MATCHES_FOR_F = 12
 #: The rungs in climbing order.
-RUNGS = ("sift", "loose", "learned", "asift", "guided")
+RUNGS = ("sift", "learned", "loose", "asift", "guided")
+#: Rungs after which a reference that verified almost nothing is given up (the costly ones follow).
+EARLY_RUNGS = ("sift", "learned")
+#: Two verified geometries agree when at least this fraction of each one's inliers fits the other.
+AGREEMENT = 0.7
 
 
 @dataclass(frozen=True)
@@ -63,6 +73,7 @@ class RungReport:
     hole_support: float
     time_s: float
     weak: str
+    cpu_s: float = 0.0  # the process's CPU time during the rung (all threads)
 
     @property
     def verified(self) -> bool:
@@ -75,6 +86,7 @@ class RungReport:
             "verified": self.n_verified,
             "hole_support": round(self.hole_support, 4),
             "time_s": round(self.time_s, 3),
+            "cpu_s": round(self.cpu_s, 3),
             "weak": self.weak,
         }
 
@@ -101,6 +113,12 @@ class Matches:
     budget_spent: bool = False  # the time budget stopped the ladder
     time_s: float = 0.0
     notes: tuple[str, ...] = field(default=())  # why the ladder climbed or stopped
+    #: What produced the matches used: "SIFT", "ASIFT" or the learned matcher's description.
+    matcher: str = "SIFT"
+    #: Why these matches were preferred when two rungs verified ("" when only one did).
+    choice: str = ""
+    #: Why the reference shows another scene ("" unless the ladder gave it up early).
+    unrelated: str = ""
     #: The source's plain-SIFT keypoints (the first rung's), which the screen stage matches the
     #: hole's content against; None where that rung did not run.
     source_features: Features | None = None
@@ -122,6 +140,8 @@ class Matches:
             line += f"; rungs: {tried}"
         if self.budget_spent:
             line += "; time budget spent"
+        if self.choice:
+            line += f"; {self.choice}"
         return line
 
     def report(self) -> dict[str, Any]:
@@ -130,6 +150,7 @@ class Matches:
             "n_keypoints_target": self.n_keypoints_target,
             "n_keypoints_source": self.n_keypoints_source,
             "rung": self.rung,
+            "matcher": self.matcher,
             "verified": self.verified,
             "n_verified": len(self),
             "n_tentative": self.n_tentative,
@@ -137,6 +158,8 @@ class Matches:
             "time_s": round(self.time_s, 3),
             "rungs": [r.to_json() for r in self.rungs],
             "notes": list(self.notes),
+            "choice": self.choice,
+            "unrelated": self.unrelated,
         }
 
 
@@ -187,6 +210,8 @@ class _Candidate:
     pts_s: np.ndarray
     F: np.ndarray | None
     n_kp: tuple[int, int]
+    tentative: tuple[np.ndarray, np.ndarray]  # (target, source) matches before verification
+    threshold: float  # the inlier threshold (px) the rung verified with
 
 
 class _Ladder:
@@ -201,6 +226,8 @@ class _Ladder:
         self.deadline = start + cfg.time_budget_s
         self.features: dict[str, tuple[Features, Features]] = {}
         self.best: _Candidate | None = None
+        self.candidates: list[_Candidate] = []
+        self.learned_name = ""
 
     def sift(self, n: int, max_side: int = 0) -> tuple[Features, Features]:
         key = f"sift{n}@{max_side}"
@@ -216,7 +243,8 @@ class _Ladder:
         matcher, why = learned_matcher(self.cfg)
         if matcher is None:
             return why
-        mt, ms, _ = matcher(*self.gray)
+        self.learned_name = why
+        mt, ms, _ = matcher(*self.gray, self.masks[0])
         inside = ~self.hole[
             np.clip(np.rint(mt[:, 1]).astype(int), 0, self.hole.shape[0] - 1),
             np.clip(np.rint(mt[:, 0]).astype(int), 0, self.hole.shape[1] - 1),
@@ -228,7 +256,7 @@ class _Ladder:
     def run(self, rung: str) -> _Candidate | str:
         """The rung's verified matches, or why it has nothing to work on (guided matching without a
         first geometry, a learned matcher that is off or does not resolve)."""
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         cfg, strict = self.cfg, self.threshold * self.cfg.strict_threshold_scale
         if rung == "sift":
             ft, fs = self.sift(cfg.max_features, cfg.sift_max_side)
@@ -237,7 +265,9 @@ class _Ladder:
             got = self.learned()
             if isinstance(got, str):
                 return got
-            (ft, fs, pairs), thr = got, strict
+            # Keypoints located at learned_max_side: their error grows with the working/learned ratio.
+            ft, fs, pairs = got
+            thr = self.threshold * max(1.0, max(self.gray[0].shape) / cfg.learned_max_side)
         elif rung == "loose":
             ft, fs = self.sift(cfg.loose_max_features)
             pairs, thr = mutual_ratio_matches(ft.desc, fs.desc, cfg.loose_ratio, False), strict
@@ -262,6 +292,7 @@ class _Ladder:
         first.sort()
         mt, ms = mt[first], ms[first]
         F, keep = verify_fundamental(mt, ms, thr, cfg)
+        tentative = (mt, ms)
         mt, ms = mt[keep], ms[keep]
         support = hole_support(self.hole, mt, cfg.hole_support_radius_px * self.scale)
         weak = []
@@ -271,11 +302,72 @@ class _Ladder:
             weak.append(
                 f"{100 * support:.0f}% of the hole near a verified match < {100 * cfg.min_hole_support:.0f}%"
             )
-        report = RungReport(rung, len(first), len(mt), support, time.perf_counter() - t0, "; ".join(weak))
-        cand = _Candidate(report, mt, ms, F, (len(ft), len(fs)))
+        report = RungReport(
+            rung,
+            len(first),
+            len(mt),
+            support,
+            time.perf_counter() - t0,
+            "; ".join(weak),
+            time.process_time() - c0,
+        )
+        cand = _Candidate(report, mt, ms, F, (len(ft), len(fs)), tentative, thr)
+        self.candidates.append(cand)
         if self.best is None or _score(cand) > _score(self.best):
             self.best = cand
         return cand
+
+    def choose(self) -> str:
+        """Between rungs that both verified (SIFT and its learned cross-check), keep SIFT's
+        geometry when the two agree (most of each rung's inliers fit the other's F), else the one
+        with more matches around the hole (within ``hole_support_radius_px``) that fit it.
+
+        Repeated structure lets SIFT verify a wrong geometry on a self-consistent subset of wrong
+        matches; a plane of it (the fox's wallpaper) leaves F ambiguous, so each F still explains
+        about half of the other rung's matches and neither can be shown wrong on the epipolar
+        constraint alone: the geometry more matches support where the fill happens is kept. Sets
+        ``best`` and returns why (empty when fewer than two rungs verified)."""
+        verified = [c for c in self.candidates if c.report.verified and c.F is not None]
+        if len(verified) < 2:
+            return ""
+        a, b = verified[:2]
+        thr = max(a.threshold, b.threshold)
+        shared = min(
+            float(np.mean(sampson_px(a.F, b.pts_t, b.pts_s) < thr)),
+            float(np.mean(sampson_px(b.F, a.pts_t, a.pts_s) < thr)),
+        )
+        if shared >= AGREEMENT:
+            return (
+                f"{a.report.rung} and {b.report.rung} agree on the geometry ({100 * shared:.0f}% of "
+                f"each one's inliers fit the other's): {a.report.rung} kept"
+            )
+        radius = self.cfg.hole_support_radius_px * self.scale
+        near = [int(near_hole(self.hole, c.pts_t, radius).sum()) for c in (a, b)]
+        self.best = b if near[1] > near[0] else a
+        return (
+            f"{a.report.rung} and {b.report.rung} disagree on the geometry (only {100 * shared:.0f}% of "
+            f"one's inliers fit the other's); {self.best.report.rung} kept: more of its matches around "
+            f"the hole fit its geometry ({a.report.rung} {near[0]}, {b.report.rung} {near[1]})"
+        )
+
+
+def near_hole(hole: np.ndarray, pts: np.ndarray, radius_px: float) -> np.ndarray:
+    """bool per point (x, y): within ``radius_px`` of the hole (outside it)."""
+    if not hole.any() or len(pts) == 0:
+        return np.ones(len(pts), bool)
+    dist = cv2.distanceTransform(np.where(hole, 0, 255).astype(np.uint8), cv2.DIST_L2, 3)
+    xy = np.clip(np.rint(pts).astype(np.int64), 0, [hole.shape[1] - 1, hole.shape[0] - 1])
+    return dist[xy[:, 1], xy[:, 0]] <= radius_px
+
+
+def sampson_px(F: np.ndarray, pts_t: np.ndarray, pts_s: np.ndarray) -> np.ndarray:
+    """Sampson distance (px) of each match to ``x_t^T F x_s = 0``."""
+    xs = np.c_[pts_s, np.ones(len(pts_s))]
+    xt = np.c_[pts_t, np.ones(len(pts_t))]
+    Fxs, Ftxt = xs @ F.T, xt @ F
+    num = np.einsum("ij,ij->i", xt, Fxs)
+    den = Fxs[:, 0] ** 2 + Fxs[:, 1] ** 2 + Ftxt[:, 0] ** 2 + Ftxt[:, 1] ** 2
+    return np.abs(num) / np.sqrt(np.maximum(den, 1e-30))
 
 
 def _score(c: _Candidate) -> tuple[bool, bool, int]:
@@ -300,9 +392,22 @@ def match_pair(
         from .learned import learned_matcher
 
         learned_matcher(cfg)  # a required matcher that cannot be used is an error before any work
+    unrelated = ""
     for rung in RUNGS[: RUNGS.index(cfg.max_rung) + 1]:
         if rung == "learned" and cfg.learned == "off" and not cfg.learned_model:
             continue
+        # A verified geometry ends the climb; only the learned cross-check still runs after SIFT.
+        if rung != "learned" and any(r.verified for r in reports):
+            break
+        most = max((r.n_verified for r in reports), default=0)
+        if rung not in EARLY_RUNGS and reports and most < cfg.unrelated_max_verified:
+            tried = " and ".join(r.rung for r in reports)
+            unrelated = (
+                f"does not show the same scene as the target: {most} matching points ({tried}), "
+                f"{cfg.unrelated_max_verified} needed"
+            )
+            notes.append(f"given up before rung {rung}: {unrelated}")
+            break
         if reports and time.perf_counter() >= ladder.deadline:
             budget_spent = True
             notes.append(f"time budget {cfg.time_budget_s:g} s spent before rung {rung}")
@@ -312,9 +417,9 @@ def match_pair(
             notes.append(f"rung {rung} skipped: {cand}")
             continue
         reports.append(cand.report)
-        if cand.report.verified:
-            break
-        notes.append(f"rung {rung} weak: {cand.report.weak}")
+        if not cand.report.verified:
+            notes.append(f"rung {rung} weak: {cand.report.weak}")
+    choice = ladder.choose()
     best = ladder.best
     elapsed = time.perf_counter() - start
     budget_spent = budget_spent or (elapsed >= cfg.time_budget_s and not best.report.verified)
@@ -331,5 +436,12 @@ def match_pair(
         budget_spent=budget_spent,
         time_s=elapsed,
         notes=tuple(notes),
+        matcher=_matcher_name(best.report.rung, ladder.learned_name),
+        choice=choice,
+        unrelated=unrelated,
         source_features=ladder.features.get(f"sift{cfg.max_features}@{cfg.sift_max_side}", (None, None))[1],
     )
+
+
+def _matcher_name(rung: str, learned: str) -> str:
+    return {"learned": learned, "asift": "ASIFT (OpenCV AffineFeature + SIFT)"}.get(rung, "SIFT (OpenCV)")
