@@ -337,6 +337,7 @@ class _Ladder:
             float(np.mean(sampson_px(b.F, a.pts_t, a.pts_s) < thr)),
         )
         if shared >= AGREEMENT:
+            self.best = a
             return (
                 f"{a.report.rung} and {b.report.rung} agree on the geometry ({100 * shared:.0f}% of "
                 f"each one's inliers fit the other's): {a.report.rung} kept"

