@@ -242,7 +242,7 @@ def run_reference(
     cfg, a = ctx.cfg, ref
     steps: dict[str, Callable[[ReferenceArtifacts], Any]] = {
         "prepare": lambda a: prepare_views(ctx.target, ctx.hole, a.source, cfg, ctx.target_exif, a.exif),
-        "match": lambda a: related(match_pair(a.views.target_gray, a.views.source_gray, a.views.hole, cfg.matching, a.views.px_scale)),
+        "match": lambda a: related(match_pair(a.views.target_gray, a.views.source_gray, a.views.hole, cfg.matching, a.views.px_scale, (a.views.K_target.K, a.views.K_source.K))),
         "focal": lambda a: estimate_focal(a.matches, a.views.K_target, a.views.K_source, cfg.intrinsics, a.views.ransac_px),
         "pose": lambda a: usable_pose(estimate_pose(a.matches, a.focal.K_target, a.focal.K_source, cfg.geometry, cfg.matching, a.views.px_scale)),
         "triangulate": lambda a: triangulate_inliers(a.matches, a.pose, a.focal, cfg),

@@ -57,8 +57,10 @@ MIN_MATCHES_FOR_F = 12
 RUNGS = ("sift", "learned", "loose", "asift", "guided")
 #: Rungs after which a reference that verified almost nothing is given up (the costly ones follow).
 EARLY_RUNGS = ("sift", "learned")
-#: Two verified geometries agree when at least this fraction of each one's inliers fits the other.
-AGREEMENT = 0.7
+#: Another rung's geometry replaces SIFT's when at least this many times as many matches support it.
+SUPPORT_MARGIN = 1.2
+#: Focal lengths (multiples of the prior) at which the rungs' geometries are compared.
+FOCAL_SCALES = (0.6, 0.8, 1.0, 1.3, 1.7)
 
 
 @dataclass(frozen=True)
@@ -218,8 +220,8 @@ class _Ladder:
     """State shared by the rungs of one :func:`match_pair` call: the images, the features already
     computed (later rungs reuse them), the best geometry so far and the deadline."""
 
-    def __init__(self, target, source, hole, cfg: MatchingConfig, scale_px: float, start: float):
-        self.cfg, self.hole, self.scale = cfg, hole, scale_px
+    def __init__(self, target, source, hole, cfg: MatchingConfig, scale_px: float, start: float, K=None):
+        self.cfg, self.hole, self.scale, self.K = cfg, hole, scale_px, K
         self.gray = (to_gray_u8(target), to_gray_u8(source))
         self.masks = (keypoint_mask(hole, cfg.hole_margin_px * scale_px), None)
         self.threshold = cfg.ransac_px(scale_px)
@@ -318,38 +320,95 @@ class _Ladder:
         return cand
 
     def choose(self) -> str:
-        """Between rungs that both verified (SIFT and its learned cross-check), keep SIFT's
-        geometry when the two agree (most of each rung's inliers fit the other's F), else the one
-        with more matches around the hole (within ``hole_support_radius_px``) that fit it.
+        """Between rungs that both verified (SIFT and its learned cross-check), keep the geometry
+        that more matches around the hole support, SIFT's unless another rung's is supported by
+        ``SUPPORT_MARGIN`` times as many. Sets ``best`` and returns why ("" when fewer than two
+        rungs verified).
 
-        Repeated structure lets SIFT verify a wrong geometry on a self-consistent subset of wrong
-        matches; a plane of it (the fox's wallpaper) leaves F ambiguous, so each F still explains
-        about half of the other rung's matches and neither can be shown wrong on the epipolar
-        constraint alone: the geometry more matches support where the fill happens is kept. Sets
-        ``best`` and returns why (empty when fewer than two rungs verified)."""
+        The support of a rung's geometry is the number of all rungs' tentative matches within
+        ``hole_support_radius_px`` of the hole that fit the essential matrix estimated from its
+        verified matches with the prior intrinsics. Not F: repeated structure on a plane (the fox's
+        wallpaper) gives SIFT matches shifted by whole periods, and those fit an F of the plane's
+        family (the epipole at infinity along the period) as well as the right matches on the
+        plane do, so F-support cannot tell the geometries apart; a calibrated E cannot take that
+        form. Without intrinsics, F-support at the rungs' threshold is used."""
         verified = [c for c in self.candidates if c.report.verified and c.F is not None]
         if len(verified) < 2:
             return ""
-        a, b = verified[:2]
-        thr = max(a.threshold, b.threshold)
-        shared = min(
-            float(np.mean(sampson_px(a.F, b.pts_t, b.pts_s) < thr)),
-            float(np.mean(sampson_px(b.F, a.pts_t, a.pts_s) < thr)),
-        )
-        if shared >= AGREEMENT:
-            self.best = a
-            return (
-                f"{a.report.rung} and {b.report.rung} agree on the geometry ({100 * shared:.0f}% of "
-                f"each one's inliers fit the other's): {a.report.rung} kept"
-            )
-        radius = self.cfg.hole_support_radius_px * self.scale
-        near = [int(near_hole(self.hole, c.pts_t, radius).sum()) for c in (a, b)]
-        self.best = b if near[1] > near[0] else a
+        pool_t = np.concatenate([c.tentative[0] for c in self.candidates])
+        pool_s = np.concatenate([c.tentative[1] for c in self.candidates])
+        near = near_hole(self.hole, pool_t, self.cfg.hole_support_radius_px * self.scale)
+        pool_t, pool_s = pool_t[near], pool_s[near]
+        thr = max(c.threshold for c in verified)
+        if self.K is not None:
+            # The prior focal length can be far off (no EXIF): each geometry is scored at its best
+            # of a few focal lengths around it.
+            support = [
+                max(
+                    essential_support(*c.tentative, pool_t, pool_s, _focal_scaled(self.K, f), thr)
+                    for f in FOCAL_SCALES
+                )
+                for c in verified
+            ]
+            kind = "essential matrix, focal prior x " + "/".join(f"{f:g}" for f in FOCAL_SCALES)
+        else:
+            support = [int((sampson_px(c.F, pool_t, pool_s) < thr).sum()) for c in verified]
+            kind = "fundamental matrix"
+        k = int(np.argmax(support))
+        if support[k] < SUPPORT_MARGIN * support[0]:
+            k = 0
+        self.best = verified[k]
+        tally = ", ".join(f"{c.report.rung} {n}" for c, n in zip(verified, support, strict=True))
         return (
-            f"{a.report.rung} and {b.report.rung} disagree on the geometry (only {100 * shared:.0f}% of "
-            f"one's inliers fit the other's); {self.best.report.rung} kept: more of its matches around "
-            f"the hole fit its geometry ({a.report.rung} {near[0]}, {b.report.rung} {near[1]})"
+            f"{self.best.report.rung} kept: of {len(pool_t)} matches around the hole, {tally} fit each "
+            f"rung's geometry ({kind}, {thr:.2f} px)"
         )
+
+
+def _focal_scaled(K: tuple[np.ndarray, np.ndarray], f: float) -> tuple[np.ndarray, np.ndarray]:
+    """``K`` (target, source) with both focal lengths times ``f``."""
+    scaled = [np.array(k, np.float64) for k in K]
+    for k in scaled:
+        k[0, 0] *= f
+        k[1, 1] *= f
+    return scaled[0], scaled[1]
+
+
+def essential_support(
+    pts_t: np.ndarray,
+    pts_s: np.ndarray,
+    pool_t: np.ndarray,
+    pool_s: np.ndarray,
+    K: tuple[np.ndarray, np.ndarray],
+    threshold_px: float,
+) -> int:
+    """How many ``pool`` matches fit (Sampson distance in target pixels < ``threshold_px``) the
+    essential matrix estimated (MAGSAC++) from the matches ``pts_t``/``pts_s`` with the target
+    and source intrinsics ``K``; 0 when none can be estimated."""
+    K_t, K_s = K
+    f = float(K_t[0, 0])
+
+    def normalised(pts: np.ndarray, K: np.ndarray) -> np.ndarray:
+        return cv2.undistortPoints(np.asarray(pts, np.float64)[:, None], K, None)[:, 0]
+
+    try:
+        E, _ = cv2.findEssentialMat(
+            normalised(pts_s, K_s),
+            normalised(pts_t, K_t),
+            np.eye(3),
+            cv2.USAC_MAGSAC,
+            0.999,
+            threshold_px / f,
+        )
+    except cv2.error:
+        return 0
+    if E is None or len(pool_t) == 0:
+        return 0
+    best = 0
+    for k in range(0, E.shape[0], 3):  # the five-point solver can return several
+        d = sampson_px(E[k : k + 3], normalised(pool_t, K_t), normalised(pool_s, K_s)) * f
+        best = max(best, int((d < threshold_px).sum()))
+    return best
 
 
 def near_hole(hole: np.ndarray, pts: np.ndarray, radius_px: float) -> np.ndarray:
@@ -377,15 +436,22 @@ def _score(c: _Candidate) -> tuple[bool, bool, int]:
 
 
 def match_pair(
-    target: np.ndarray, source: np.ndarray, hole: np.ndarray, cfg: MatchingConfig, scale_px: float = 1.0
+    target: np.ndarray,
+    source: np.ndarray,
+    hole: np.ndarray,
+    cfg: MatchingConfig,
+    scale_px: float = 1.0,
+    K: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> Matches:
     """Match ``target`` (with boolean ``hole``) against ``source``; both RGB at working resolution.
 
     ``scale_px`` converts the config's pixel distances (given at a 1280-px long side) to this image.
+    ``K``: the prior (target, source) intrinsics at working resolution, with which two verified
+    rungs' geometries are compared (:meth:`_Ladder.choose`).
     Never raises on valid images: a pair without a verifiable geometry gives :attr:`Matches.too_few`.
     """
     start = time.perf_counter()
-    ladder = _Ladder(target, source, hole, cfg, scale_px, start)
+    ladder = _Ladder(target, source, hole, cfg, scale_px, start, K)
     reports: list[RungReport] = []
     notes: list[str] = []
     budget_spent = False
