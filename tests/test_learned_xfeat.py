@@ -10,7 +10,6 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from geofill.camera import pose_errors_deg
 from geofill.config import FillConfig, MatchingConfig
 from geofill.errors import MissingExtraError
 from geofill.evaluation.pairs import load_pair, pair_mask
@@ -57,12 +56,20 @@ def test_learned_matches_fit_the_true_geometry_of_a_rendered_pair() -> None:
 
 @NEEDS_EXTRA
 def test_fox_wallpaper_sift_geometry_loses_to_the_learned_one(pairs_dir) -> None:
+    # The whole target (hole keypoints masked, not blanked): SIFT verifies 86 matches of a wrong
+    # geometry on the wallpaper, the learned rung the right one, and the calibrated support says so.
     pair = load_pair(pairs_dir / FOX)
     cfg = FillConfig()
     v = _views(pair, cfg)
-    m = match_pair(v.target_gray, v.source_gray, v.hole, cfg.matching, v.px_scale)
+    m = match_pair(
+        v.target_gray, v.source_gray, v.hole, cfg.matching, v.px_scale, (v.K_target.K, v.K_source.K)
+    )
     assert [r.rung for r in m.rungs] == ["sift", "learned"] and all(r.verified for r in m.rungs)
-    assert m.rung == "learned" and "disagree" in m.choice and m.matcher.startswith("XFeat+LighterGlue")
+    assert (
+        m.rung == "learned"
+        and m.choice.startswith("learned kept")
+        and m.matcher.startswith("XFeat+LighterGlue")
+    )
     assert m.report()["matcher"] == m.matcher and m.report()["choice"] == m.choice
     # The kept matches fit the ground-truth geometry; SIFT's verified ones (the wallpaper) do not.
     meta = pair.meta
@@ -76,19 +83,6 @@ def test_fox_wallpaper_sift_geometry_loses_to_the_learned_one(pairs_dir) -> None
     assert np.median(sampson_px(F, m.pts_target, m.pts_source)) < 2.0
     # The source's SIFT features stay available to the screen stage.
     assert m.source_features is not None and len(m.source_features) > 1000
-
-
-@NEEDS_EXTRA
-@pytest.mark.slow
-def test_fox_fills_from_its_reference_within_two_degrees(pairs_dir) -> None:
-    pair = load_pair(pairs_dir / FOX)
-    hole = pair_mask(pair, 0, 100.0)
-    result = fill(pair.target, hole, [pair.source], FillConfig())
-    assert result.report.status == "reference", result.report.fallbacks
-    (ref,) = result.references
-    r_err, _ = pose_errors_deg(ref.geometry.T, np.array(pair.meta["T_source_to_target"]))
-    assert r_err <= 2.0
-    assert result.report.references[0]["match"]["matcher"].startswith("XFeat+LighterGlue")
 
 
 @NEEDS_EXTRA
