@@ -1,7 +1,8 @@
 """Wide baselines: the wide DEV pairs and the towers filled with plain SIFT only (the ladder capped
 at its first rung: what a fill did before the ladder), with the ladder without the learned matcher
-(``nolearned``: a base install) and with the default ladder (``ladder``: with the ``learned``
-extra when it is installed), against the homography baseline, on the evaluation's 100-px brush
+(``nolearned``: a base install), with the default ladder (``ladder``: with the ``learned`` extra
+when it is installed) and with the learned rung cross-checking a verified SIFT geometry too
+(``crosscheck``), against the homography baseline, on the evaluation's 100-px brush
 holes (seed 0).
 
     .venv/bin/python benchmarks/quality/wide_results.py [--pairs DIR ...] [--seed 0] [--variants ...]
@@ -41,6 +42,7 @@ VARIANTS = {
     "sift": {"matching.max_rung": "sift", "matching.learned": "off"},
     "nolearned": {"matching.learned": "off"},
     "ladder": {},
+    "crosscheck": {"matching.learned_cross_check": True},
 }
 
 

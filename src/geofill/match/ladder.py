@@ -11,9 +11,10 @@ by a robust estimator (OpenCV USAC MAGSAC++ by default). What every easy pair us
 
 ``learned`` (``matching.learned``: by default whenever the ``learned`` extra is installed):
 XFeat + LighterGlue (:mod:`geofill.match.xfeat`) or an ONNX matcher graph
-(:mod:`geofill.match.learned`). It runs even after SIFT verified: repeated structure gives SIFT
-many verified but wrong matches (the fox's wallpaper: 86 verified, a 62-degree pose error). When
-both rungs verify, the geometry that more of both rungs' matches around the hole fit is kept
+(:mod:`geofill.match.learned`), when SIFT's geometry is weak. With
+``matching.learned_cross_check`` it also runs after SIFT verified: repeated structure gives SIFT
+many verified but wrong matches (the fox's wallpaper: 86 verified, a 62-degree pose error); when
+both rungs verify, the geometry that more matches around the hole support is kept
 (:meth:`_Ladder.choose`), and the report says which and why.
 
 ``loose``: more SIFT keypoints and a looser ratio test (more true matches on wide baselines, and
@@ -463,8 +464,8 @@ def match_pair(
     for rung in RUNGS[: RUNGS.index(cfg.max_rung) + 1]:
         if rung == "learned" and cfg.learned == "off" and not cfg.learned_model:
             continue
-        # A verified geometry ends the climb; only the learned cross-check still runs after SIFT.
-        if rung != "learned" and any(r.verified for r in reports):
+        # A verified geometry ends the climb; only the learned cross-check, when asked for, still runs.
+        if any(r.verified for r in reports) and not (rung == "learned" and cfg.learned_cross_check):
             break
         most = max((r.n_verified for r in reports), default=0)
         if rung not in EARLY_RUNGS and reports and most < cfg.unrelated_max_verified:
