@@ -289,7 +289,7 @@ class MatchingConfig:
         "Run the ``learned`` rung also when SIFT's geometry verified, and keep whichever geometry more "
         "matches around the hole support (calibrated with the focal prior; the report says why). Off by "
         "default: on the 23 DEV pairs it kept SIFT's geometry on every pair SIFT verified (same fills, mean "
-        "hole PSNR 16.28 dB either way) at 3-5 s more CPU per pair (benchmarks/quality/wide_results.py).",
+        "hole PSNR 16.28 dB either way) at 2.6-7.5 s more CPU per pair (benchmarks/quality/wide_results.py).",
     )
     learned_matcher: Literal["xfeat-lighterglue", "onnx"] = setting(
         "xfeat-lighterglue",
