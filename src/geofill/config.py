@@ -301,7 +301,8 @@ class MatchingConfig:
     learned_max_keypoints: Annotated[int, Range(16, 100_000)] = setting(
         2048,
         "``xfeat-lighterglue``: XFeat keypoints per image (the strongest). 1024 lost the fox pair's geometry "
-        "(49 deg rotation error; 2048: 1.2 deg); LighterGlue's cost grows with their product.",
+        "(49 deg rotation error with the true K, hole not blanked; 2048: 1.2 deg); LighterGlue's cost grows "
+        "with their product.",
     )
     learned_model: str | None = setting(
         None,
