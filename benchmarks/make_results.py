@@ -149,6 +149,36 @@ SECTIONS = [
         [PY, "benchmarks/quality/wide_results.py"],
     ),
     Section(
+        "learned",
+        "Learned matching (XFeat + LighterGlue, the `learned` extra) on every DEV pair "
+        "(`benchmarks/quality/wide_results.py`)",
+        "The 23 DEV pairs, 100-px brush holes (seed 0), each filled without the learned matcher "
+        "(`nolearned`: a base install), with the default ladder and the extra installed (`ladder`: the "
+        "learned rung when SIFT is weak) and with the learned rung also cross-checking a verified SIFT "
+        "geometry (`crosscheck`); rung, verified matches, pose error against the GT where given, hole "
+        "PSNR against the homography baseline, the learned rung's wall and CPU seconds, fill time (one "
+        "run, variants interleaved on a shared CPU). Needs the extra in the running environment "
+        "(`make learned`).",
+        [
+            PY,
+            "benchmarks/quality/wide_results.py",
+            "--pairs",
+            str(PAIRS),
+            "--variants",
+            "nolearned",
+            "ladder",
+            "crosscheck",
+        ],
+    ),
+    Section(
+        "learned_speed",
+        "The learned rung's cost against the SIFT rung (`benchmarks/speed/learned_rung.py`)",
+        "The 5 `dev_wide_*` pairs at the working size, hole blanked: the `sift` rung, the learned matcher "
+        "on a new target and on a target already seen (another reference of the same fill), alternated, "
+        "medians of 3; wall and process CPU seconds, `uptime` before and after.",
+        [PY, "benchmarks/speed/learned_rung.py"],
+    ),
+    Section(
         "wide_ladder",
         "The ladder on every DEV pair: rung and matching time (`benchmarks/studies/wide_bench.py`)",
         "Matching alone, plain SIFT against the ladder interleaved (3 repeats, median); on the pairs where "

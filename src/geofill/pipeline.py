@@ -301,7 +301,7 @@ def run_reference(
     cfg, a = ctx.cfg, ref
     steps: dict[str, Callable[[ReferenceArtifacts], Any]] = {
         "prepare": lambda a: prepare_views(ctx.target, ctx.hole, a.source, cfg, ctx.target_exif, a.exif),
-        "match": lambda a: match_pair(a.views.target_gray, a.views.source_gray, a.views.hole, cfg.matching, a.views.px_scale),
+        "match": lambda a: related(match_pair(a.views.target_gray, a.views.source_gray, a.views.hole, cfg.matching, a.views.px_scale, (a.views.K_target.K, a.views.K_source.K))),
         "focal": lambda a: estimate_focal(a.matches, a.views.K_target, a.views.K_source, cfg.intrinsics, a.views.ransac_px),
         "pose": lambda a: usable_pose(estimate_pose(a.matches, a.focal.K_target, a.focal.K_source, cfg.geometry, cfg.matching, a.views.px_scale)),
         "triangulate": lambda a: triangulate_inliers(a.matches, a.pose, a.focal, cfg),
@@ -334,6 +334,14 @@ def run_reference(
 def _label(index: int, name: str) -> str:
     """How the plain messages name a reference: "reference 2", or "reference 2 (left.jpg)"."""
     return f"reference {index} ({name})" if name else f"reference {index}"
+
+
+def related(matches: Matches) -> Matches:
+    """``matches`` unless the ladder found that the reference shows another scene (then it cannot
+    help, and the costly stages are not run)."""
+    if matches.unrelated:
+        raise ReferenceUnusable(matches.unrelated)
+    return matches
 
 
 def usable_pose(pose: PoseEstimate) -> PoseEstimate:
