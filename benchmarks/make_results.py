@@ -92,8 +92,9 @@ SECTIONS = [
         "removal_strangers",
         "Object removal, strangers in the references (`geofill eval --protocol strangers`)",
         "Cutouts pasted into the references over 30-60 % of where the hole's background appears in them; "
-        "the target's hole shows another cutout. Nothing in the target shows the strangers, so the screen "
-        "stage cannot refuse them (measured: docs/architecture.md).",
+        "the target's hole shows another cutout. The screen stage refuses the render content that continues "
+        "a stranger reaching beyond the hole (where the render disagrees with the target around it); a "
+        "stranger wholly inside the hole's footprint is not caught (docs/architecture.md).",
         _eval(
             "{out}",
             "--protocol",
@@ -164,6 +165,36 @@ SECTIONS = [
         [PY, "benchmarks/quality/wide_results.py"],
     ),
     Section(
+        "learned",
+        "Learned matching (XFeat + LighterGlue, the `learned` extra) on every DEV pair "
+        "(`benchmarks/quality/wide_results.py`)",
+        "The 23 DEV pairs, 100-px brush holes (seed 0), each filled without the learned matcher "
+        "(`nolearned`: a base install), with the default ladder and the extra installed (`ladder`: the "
+        "learned rung when SIFT is weak) and with the learned rung also cross-checking a verified SIFT "
+        "geometry (`crosscheck`); rung, verified matches, pose error against the GT where given, hole "
+        "PSNR against the homography baseline, the learned rung's wall and CPU seconds, fill time (one "
+        "run, variants interleaved on a shared CPU). Needs the extra in the running environment "
+        "(`make learned`).",
+        [
+            PY,
+            "benchmarks/quality/wide_results.py",
+            "--pairs",
+            str(PAIRS),
+            "--variants",
+            "nolearned",
+            "ladder",
+            "crosscheck",
+        ],
+    ),
+    Section(
+        "learned_speed",
+        "The learned rung's cost against the SIFT rung (`benchmarks/speed/learned_rung.py`)",
+        "The 5 `dev_wide_*` pairs at the working size, hole blanked: the `sift` rung, the learned matcher "
+        "on a new target and on a target already seen (another reference of the same fill), alternated, "
+        "medians of 3; wall and process CPU seconds, `uptime` before and after.",
+        [PY, "benchmarks/speed/learned_rung.py"],
+    ),
+    Section(
         "wide_ladder",
         "The ladder on every DEV pair: rung and matching time (`benchmarks/studies/wide_bench.py`)",
         "Matching alone, plain SIFT against the ladder interleaved (3 repeats, median); on the pairs where "
@@ -204,7 +235,7 @@ SECTIONS = [
     ),
     Section(
         "refine_eval",
-        "Refinement ablation on the real pairs (`geofill eval`, issue 6)",
+        "Refinement ablation on the real pairs (`geofill eval`)",
         "The render pasted as is (`no_refine`), residual flow only (`flow`), colour only (`colour`: smooth "
         "gain, no flow), and each colour model with the flow (`global` gain+offset, `poisson`); `geofill` is "
         "the default (smooth gain + flow). Each method runs the whole pipeline, so earlier stages may differ "
@@ -245,7 +276,7 @@ SECTIONS = [
     ),
     Section(
         "depth_eval",
-        "Depth accuracy per backend (`benchmarks/studies/depth_eval.py`, issue 4)",
+        "Depth accuracy per backend (`benchmarks/studies/depth_eval.py`)",
         "The paper's supplement depth table: AbsRel, RMS-log and delta<1.25 of the source depth the pipeline "
         "renders with (after its own scale/offset), over all valid pixels and over those that project into "
         "the hole; synthetic scenes (exact depth) and the real pairs with GT depth. `onnx`/`fused` need "
@@ -261,7 +292,7 @@ SECTIONS = [
     ),
     Section(
         "depth_backends",
-        "Fill quality per depth backend (`geofill eval`, issue 4)",
+        "Fill quality per depth backend (`geofill eval`)",
         "`geofill` = `auto` (here: stereo, no weights); `geofill_fused` fails without weights and is "
         "recorded as failed, not skipped.",
         _eval("{out}", "--methods", "homography,geofill_sparse,geofill_stereo,geofill_fused,geofill"),
@@ -269,14 +300,13 @@ SECTIONS = [
     ),
     Section(
         "stereo_speed",
-        "Stereo backend time at 1280x720 (`benchmarks/speed/stereo_speed.py`, issue 4)",
+        "Stereo backend time at 1280x720 (`benchmarks/speed/stereo_speed.py`)",
         "Budget: 2 s on this 2-core machine.",
         [PY, "benchmarks/speed/stereo_speed.py"],
     ),
     Section(
         "optimize_synthetic",
-        "Joint optimisation from a perturbed start, 1280x720 "
-        "(`benchmarks/studies/optimize_bench.py`, issue 5)",
+        "Joint optimisation from a perturbed start, 1280x720 (`benchmarks/studies/optimize_bench.py`)",
         "Exact depth and pose, start perturbed by 5 deg rotation, 10 deg translation direction, depth x1.2. "
         "`paper` = DiffGrad at a quarter of the paper's iteration limits (1000/1750/2250/2500; the full "
         "limits take up to an hour on one scene here). Objective = the finest level's (lower is better).",
@@ -284,14 +314,14 @@ SECTIONS = [
     ),
     Section(
         "optimize_real",
-        "Joint optimisation on the real pairs (`benchmarks/studies/optimize_bench.py real`, issue 5)",
+        "Joint optimisation on the real pairs (`benchmarks/studies/optimize_bench.py real`)",
         "Both solvers from the pipeline's own start (evaluation hole, seed 0); `paper` at a tenth of its "
         "iteration limits. Pose errors against the GT pose where meta.json has one (before = the start).",
         [PY, "benchmarks/studies/optimize_bench.py", "real", "--paper-scale", "0.1"],
     ),
     Section(
         "optimize_eval",
-        "Optimisation variants and the paper's ablations (`geofill eval`, issue 5)",
+        "Optimisation variants and the paper's ablations (`geofill eval`)",
         "Same depth for every method (`optimize_bench.py eval` memoises the depth stage per pair). "
         "`geofill_paper` at a tenth of the paper's iteration limits. The paper's own numbers (RealEstate10K, "
         "with CST, whole-image PSNR): init 30.66, optimised 31.47; without L_photo / L_feat / L_negD 31.19 / "
@@ -348,7 +378,7 @@ SECTIONS = [
     ),
     Section(
         "focal",
-        "Focal length from the pair (`benchmarks/studies/focal_bench.py`, issue 7)",
+        "Focal length from the pair (`benchmarks/studies/focal_bench.py`)",
         "Focal and pose accuracy per estimator on the GT pairs and rendered scenes, then whole fills with "
         "the evaluation's masks (seeds 0-2): fixed focal, estimated (default), refined in the "
         "optimisation, true K, and the fixed focal x0.98 / x1.02 (how much a 2 % focal change moves a fill).",
@@ -356,7 +386,7 @@ SECTIONS = [
     ),
     Section(
         "focal_curve",
-        "Fill PSNR against the focal length (`benchmarks/studies/focal_bench.py --curve`, issue 7)",
+        "Fill PSNR against the focal length (`benchmarks/studies/focal_bench.py --curve`)",
         "Hole PSNR per mask seed with the focal fixed at a grid of scales of the default, on the pair where "
         "the estimate lost most against the default (ETH3D terrace, no ground truth) and on two GT pairs; "
         "'estim.' is the default pipeline at the scale it chose. How far apart neighbouring focal lengths "
@@ -372,8 +402,7 @@ SECTIONS = [
     ),
     Section(
         "focal_refine",
-        "Focal refinement in the optimisation, synthetic "
-        "(`benchmarks/studies/optimize_bench.py focal`, issue 7)",
+        "Focal refinement in the optimisation, synthetic (`benchmarks/studies/optimize_bench.py focal`)",
         "Rendered scenes whose true focal is 0.8x / 1.25x the assumed default, filled with and without "
         "`optimize.refine_focal` (estimation off, so the refinement alone moves the focal).",
         [

@@ -3,6 +3,7 @@ bad items among good ones, exit statuses, Ctrl-C; and the single fill's ``--allo
 
 from __future__ import annotations
 
+import io
 import json
 import os
 import shutil
@@ -15,9 +16,10 @@ import cv2
 import numpy as np
 import pytest
 
+from geofill.batch.display import BatchDisplay, summary_table
 from geofill.batch.runner import exit_status
 from geofill.cli import main
-from geofill.errors import EXIT_FELL_BACK, EXIT_INTERRUPTED, EXIT_ITEMS_FAILED
+from geofill.errors import EXIT_FELL_BACK, EXIT_INTERRUPTED, EXIT_ITEMS_FAILED, EXIT_TERMINATED
 from geofill.synthetic import blanked, make_pair
 
 SEEDS = (3, 5)
@@ -138,6 +140,39 @@ def test_batch_fallbacks_exit_5_unless_allowed(pairs, tmp_path):
     assert r["candidates"][0]["picked"] is False
 
 
+def test_results_say_which_reference_was_dropped_and_why(pairs, tmp_path, capsys):
+    p = pairs["t3"]
+    root = _shoot(tmp_path, {"t3": p})
+    noise = root / "refs" / "t3" / "zz_noise.png"
+    _write_rgb(noise, _noise(p.source.shape))
+    out = tmp_path / "out"
+    assert _batch(root, out, "--sources-per-image", root / "refs", "--jobs", "1") == 0
+    (r,) = _records(out)
+    assert r["status"] == "reference"
+    assert r["references"] == [str(root / "refs" / "t3" / "view.png"), str(noise)]  # both were given
+    (dropped,) = r["references_dropped"]
+    assert dropped["reference"] == str(noise)
+    assert dropped["reason"] == "it does not show enough of the same scene"  # plain words
+    assert dropped["detail"]  # the technical reason, for whoever debugs
+    line = capsys.readouterr().err
+    assert "of the hole filled from 1 reference(s); 1 reference(s) not used" in line
+
+
+def test_rate_counts_only_items_that_were_filled():
+    stream = io.StringIO()
+    display = BatchDisplay(3, stream)
+    failed = {"item": "a", "status": "failed", "error": "a.png: no mask with stem 'a'"}
+    display.update(failed)  # at once, before any fill: no rate to speak of yet
+    assert stream.getvalue() == "geofill: [1/3] a: FAILED: a.png: no mask with stem 'a'\n"
+    display.t0 -= 30.0  # as if the next item took 30 s
+    display.update({"item": "b", "status": "reference", "references": ["r.png"], "coverage": 0.9})
+    assert stream.getvalue().splitlines()[1].endswith("| 2.0 fills/min, ETA 30s")
+    table = summary_table(
+        [failed], total=3, skipped=0, elapsed_s=0.02, jobs="1 job(s)", results_path="r", interrupted=False
+    )
+    assert "fills/min" not in table.splitlines()[0]
+
+
 def test_single_fill_allow_fallback_rule(pairs, tmp_path, capsys):
     p = pairs["t3"]
     _write_rgb(tmp_path / "target.png", p.target)
@@ -149,30 +184,44 @@ def test_single_fill_allow_fallback_rule(pairs, tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert code == EXIT_FELL_BACK
     assert (tmp_path / "a.png").is_file()  # the result is still written
-    assert len(err) == 1 and err[0].startswith("geofill: fell back to single-image inpainting (")
+    assert len(err) == 1 and err[0].startswith(
+        "geofill: no reference photo could be used, the whole hole was painted from its surroundings "
+        "(reference 1 (noise.png) was not used: it does not show enough of the same scene"
+    ), err
     assert "exit status 5 (--allow-fallback accepts it)" in err[0]
     assert main([str(a) for a in [*argv, "-o", tmp_path / "b.png", "--allow-fallback"]]) == 0
     assert np.array_equal(_read_rgb(tmp_path / "a.png"), _read_rgb(tmp_path / "b.png"))
 
 
-def test_ctrl_c_keeps_finished_items_and_prints_the_summary(pairs, tmp_path):
-    # 24 small items: enough that, under load, the signal lands long before the last one finishes.
+def _start_batch(tmp_path, pairs, *extra):
+    """24 small items in a ``geofill batch`` subprocess, started when its first item is recorded:
+    enough that, under load, a signal lands long before the last one finishes."""
     names = {f"{key}_{i}": key for i in range(12) for key in pairs}
     root, out = _shoot(tmp_path, pairs, names), tmp_path / "out"
     cmd = [sys.executable, "-m", "geofill.cli", "batch", "--images", str(root / "images")]
     cmd += ["--masks", str(root / "masks"), "--sources-per-image", str(root / "refs"), "--out", str(out)]
-    proc = subprocess.Popen([*cmd, "--jobs", "2"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    cmd += ["--jobs", "2", *extra]
+    # A session of its own, so that a signal can go to the whole process group as a service manager
+    # sends it (the workers get it too).
+    proc = subprocess.Popen(
+        cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True
+    )
     results = out / "results.jsonl"
     deadline = time.monotonic() + 300
     while not (results.is_file() and results.read_text().strip()) and time.monotonic() < deadline:
         assert proc.poll() is None, proc.communicate()
         time.sleep(0.2)
+    return proc, names, out, cmd
+
+
+def test_ctrl_c_keeps_finished_items_and_prints_the_summary(pairs, tmp_path):
+    proc, names, out, _ = _start_batch(tmp_path, pairs)
     proc.send_signal(signal.SIGINT)
     stdout, stderr = proc.communicate(timeout=60)
     assert proc.returncode == EXIT_INTERRUPTED, stderr
     records = _records(out)
     assert 1 <= len(records) < len(names)
-    assert "INTERRUPTED" in stdout and "not run (interrupted)" in stdout
+    assert "STOPPED by Ctrl-C" in stdout and "not run (stopped by Ctrl-C)" in stdout
     for r in records:
         assert r["status"] == "reference"
         p = pairs[names[r["item"]]]
@@ -182,6 +231,39 @@ def test_ctrl_c_keeps_finished_items_and_prints_the_summary(pairs, tmp_path):
         assert f.name == "results.jsonl" or (f.suffix == ".png" and _read_rgb(f).shape == (240, 320, 3)), (
             f.name
         )
+
+
+@pytest.mark.parametrize("to", ["batch", "group"])
+def test_sigterm_stops_at_once_keeping_finished_items_for_resume(pairs, tmp_path, to):
+    proc, names, out, cmd = _start_batch(tmp_path, pairs)
+    t0 = time.monotonic()
+    if to == "group":
+        os.killpg(proc.pid, signal.SIGTERM)
+    else:
+        proc.send_signal(signal.SIGTERM)
+    stdout, stderr = proc.communicate(timeout=60)
+    stopped_s = time.monotonic() - t0
+    assert proc.returncode == EXIT_TERMINATED == 143, stderr
+    assert "STOPPED by SIGTERM" in stdout
+    # Within the time a worker takes to die, not after the items in flight finish (seconds each).
+    assert stopped_s < 3.0, stopped_s
+    records = _records(out)
+    assert 1 <= len(records) < len(names)
+    # A worker's fill cut short by the signal is no failed item: every record is a finished fill.
+    assert all(r["status"] == "reference" for r in records), records
+    # Every output written is recorded, and nothing else is left (no temporary file of a write).
+    written = {f.stem for f in out.glob("*.png")}
+    assert {r["item"] for r in records} == written
+    assert {f.name for f in out.iterdir()} == {"results.jsonl"} | {f"{n}.png" for n in written}
+    if to == "group":
+        return
+    # --resume skips exactly those and runs only the others.
+    rerun = subprocess.run([*cmd, "--resume"], capture_output=True, text=True, timeout=600)
+    assert rerun.returncode == 0, rerun.stderr
+    assert f"skipped (already complete)  {len(records):>5d}" in rerun.stdout
+    after = {r["item"]: r for r in _records(out)}
+    assert set(after) == set(names)
+    assert all(after[r["item"]] == r for r in records)  # kept as they were, not run again
 
 
 def test_ray_without_the_extra_is_a_one_line_error(pairs, tmp_path, monkeypatch, capsys):
@@ -210,7 +292,7 @@ def test_batch_reference_masks_from_folders_and_a_manifest(tmp_path):
     by = {r["item"]: r for r in _records(out)}
     plain, masked, sized = by["plain"], by["masked"], by["sized"]
     assert plain["status"] == masked["status"] == "reference"
-    assert plain["reference_masks"] == [None] and plain["refused_fraction"] == {}
+    assert plain["reference_masks"] == [None] and plain["refused_fraction"] == {"stranger": 0.0}
     assert masked["reference_masks"] == [str(refs / "masked" / "view.mask.png")]
     assert masked["refused_fraction"]["masked"] > 0.2
     assert masked["coverage"] < plain["coverage"] - 0.2  # less of the hole from the reference

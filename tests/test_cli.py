@@ -5,11 +5,18 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
+import struct
+import subprocess
+import sys
+import time
 import typing
+import zlib
 
 import cv2
 import numpy as np
 import pytest
+from PIL import ExifTags, Image
 
 from geofill.cli import build_parser, main
 from geofill.config import DepthConfig, FillConfig, choices
@@ -44,9 +51,20 @@ def fill_args(d, out, **over):
 def test_fill_writes_output_and_debug(files, tmp_path, capsys):
     d, p = files
     out, dbg = tmp_path / "out.png", tmp_path / "dbg"
+    t0 = time.perf_counter()
     code, err = run([*fill_args(d, out), "--debug-dir", dbg], capsys)
+    wall = time.perf_counter() - t0
     assert code == 0
-    assert any(line.startswith("geofill: match") for line in err)  # progress per stage
+    # The default output is plain: the done fraction, then the line a user needs, with the time the
+    # command took (not the stages' times summed); the stage details are for --verbose.
+    assert not any(re.match(r"geofill: (ref \d+: )?match ", line) for line in err), err
+    *steps, last = err
+    assert steps == [f"geofill: {pct}% done" for pct in (25, 50, 75)]
+    said = re.fullmatch(
+        rf"geofill: wrote {re.escape(str(out))} in (\d+\.\d) s: (\d+)% of the hole from source.png, .*", last
+    )
+    assert said, last
+    assert 0 < float(said[1]) <= wall + 0.05, (said[1], wall)
     result = cv2.cvtColor(cv2.imread(str(out)), cv2.COLOR_BGR2RGB)
     assert np.array_equal(result[~p.hole], p.target[~p.hole])
     assert not np.array_equal(result[p.hole], np.zeros_like(result[p.hole]))
@@ -65,6 +83,16 @@ def test_fill_writes_output_and_debug(files, tmp_path, capsys):
     assert report["config"]["render"]["edge_threshold"] == 0.04
 
 
+def test_verbose_prints_every_stage_with_its_details(files, tmp_path, capsys):
+    d, _ = files
+    code, err = run([*fill_args(d, tmp_path / "o.png"), "--verbose"], capsys)
+    assert code == 0
+    stages = [m[1] for line in err if (m := re.match(r"geofill: (\w+(?: \w+)?) +\d+\.\d\d s", line))]
+    assert stages[:3] == ["check inputs", "prepare", "match"] and stages[-2:] == ["fuse", "composite"]
+    assert any("verified" in line and "matches" in line for line in err)  # the match stage's summary
+    assert err[-1].startswith(f"geofill: wrote {tmp_path / 'o.png'} in ")
+
+
 def test_quiet_prints_nothing(files, tmp_path, capsys):
     d, _ = files
     code, err = run([*fill_args(d, tmp_path / "o.jpg"), "--quiet"], capsys)
@@ -75,11 +103,25 @@ def _corrupt(path):
     path.write_bytes(b"\x89PNG\r\n\x1a\n" + b"garbage" * 20)
 
 
+def _png_chunk(kind: bytes, data: bytes) -> bytes:
+    return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+
+def _truncated_png(path, rgb):
+    """A PNG of ``rgb`` whose image data is a complete zlib stream holding its first third of rows."""
+    h, w = rgb.shape[:2]
+    rows = b"".join(b"\0" + rgb[y].tobytes() for y in range(h // 3))
+    ihdr = struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0)
+    data = _png_chunk(b"IHDR", ihdr) + _png_chunk(b"IDAT", zlib.compress(rows)) + _png_chunk(b"IEND", b"")
+    path.write_bytes(b"\x89PNG\r\n\x1a\n" + data)
+
+
 @pytest.mark.parametrize(
     ("case", "expected_code", "needle"),
     [
         ("missing", 2, "not found"),
         ("corrupt", 2, "corrupt"),
+        ("truncated", 2, "truncated or corrupt (its image data stops at 33% of its 320x240 pixels)"),
         ("mask_size", 2, "mask is 100x100 but the target"),
         ("empty_mask", 2, "no hole pixel"),
         ("full_mask", 2, "%"),
@@ -99,6 +141,9 @@ def test_bad_input_is_one_line_error_and_writes_nothing(files, tmp_path, capsys,
     elif case == "corrupt":
         _corrupt(tmp_path / "bad.png")
         over["target"] = tmp_path / "bad.png"
+    elif case == "truncated":
+        _truncated_png(tmp_path / "cut.png", p.target)
+        over["target"] = tmp_path / "cut.png"
     elif case == "mask_size":
         cv2.imwrite(str(tmp_path / "m.png"), np.full((100, 100), 255, np.uint8))
         over["mask"] = tmp_path / "m.png"
@@ -124,6 +169,24 @@ def test_bad_input_is_one_line_error_and_writes_nothing(files, tmp_path, capsys,
     assert not out.exists() and not dbg.exists()
     assert sorted(f.name for f in tmp_path.iterdir()) == sorted(
         f.name for f in tmp_path.iterdir() if f.suffix != ".tmp" and not f.name.startswith(".")
+    )
+
+
+def test_a_corrupt_exif_block_is_a_note_not_a_python_warning(files, tmp_path):
+    d, p = files
+    exif = Image.Exif()
+    exif[ExifTags.Base.Make], exif[ExifTags.Base.Model] = "Apple", "iPhone 4S"
+    exif.get_ifd(ExifTags.IFD.Exif)[ExifTags.Base.FocalLength] = 4.28
+    target = tmp_path / "t.jpg"
+    Image.fromarray(p.target).save(target, quality=95, exif=exif.tobytes()[:40])  # cut inside an IFD
+    argv = [*fill_args(d, tmp_path / "o.png", target=target), "--allow-fallback"]
+    run = subprocess.run(
+        [sys.executable, "-m", "geofill.cli", *map(str, argv)], capture_output=True, text=True, timeout=300
+    )
+    assert run.returncode == 0, run.stderr
+    assert "Warning" not in run.stderr and ".py:" not in run.stderr, run.stderr
+    assert run.stderr.splitlines()[0] == (
+        f"geofill: note: {target}: part of its metadata could not be read (Truncated File Read)"
     )
 
 
@@ -177,6 +240,16 @@ def test_demo_writes_side_by_side_and_numbers(tmp_path, capsys):
     assert g["psnr_hole_db"] > s["psnr_hole_db"] + 3.0
     img = cv2.imread(str(tmp_path / "demo" / "side_by_side.png"))
     assert img.shape == (480, 5 * 640, 3)
+
+
+@pytest.mark.parametrize("command", ["", "fill", "batch", "serve", "demo", "config", "models", "eval"])
+def test_help_is_plain_text(command, capsys):
+    with pytest.raises(SystemExit) as stop:
+        main([*filter(None, [command]), "--help"])
+    assert stop.value.code == 0
+    text = capsys.readouterr().out
+    assert text.startswith("usage: geofill")
+    assert not re.search(r"``|:(func|class|mod|data):`", text), text
 
 
 def test_command_exits_with_mains_status(files, tmp_path):

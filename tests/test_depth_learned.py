@@ -221,7 +221,8 @@ def test_cli_prints_the_depth_choice_and_reports_it(scene, tmp_path, capsys):
     from geofill.cli import main
 
     args = _cli_inputs(tmp_path, scene)
-    assert main([*args, "-o", str(tmp_path / "out.png"), "--debug-dir", str(tmp_path / "dbg")]) == 0
+    # A technical detail: printed with --verbose, and in report.json whatever the flags.
+    assert main([*args, "-o", str(tmp_path / "out.png"), "--debug-dir", str(tmp_path / "dbg"), "-v"]) == 0
     err = capsys.readouterr().err
     assert "geofill: depth backend: stereo (auto: Depth Anything V2 Small (ONNX) weights not available" in err
     import json

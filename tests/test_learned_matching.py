@@ -85,7 +85,7 @@ def _matcher_graph(path, pts_t: np.ndarray, pts_s: np.ndarray, f: float) -> str:
 
 
 #: Plain SIFT and the loose rung starved of keypoints, so that the ladder climbs to the learned rung.
-STARVED = MatchingConfig(max_features=40, loose_max_features=40, max_rung="learned")
+STARVED = MatchingConfig(max_features=40, loose_max_features=40, max_rung="loose", learned="off")
 
 
 def test_ladder_climbs_to_the_learned_rung_and_maps_matches_back(wide, tmp_path):
@@ -93,11 +93,11 @@ def test_ladder_climbs_to_the_learned_rung_and_maps_matches_back(wide, tmp_path)
     assert len(pts_t) > 200
     # The matcher runs at a long side of 160 px: half the 320-px images.
     path = _matcher_graph(tmp_path / "m.onnx", pts_t, pts_s, f=0.5)
-    cfg = replace(STARVED, learned="auto", learned_model=path, learned_max_side=160)
+    cfg = replace(STARVED, learned="auto", learned_model=path, learned_max_side=160, unrelated_max_verified=0)
     m = match_pair(wide.target, wide.source, wide.hole, cfg, SCALE)
-    assert [r.rung for r in m.rungs] == ["sift", "loose", "learned"]
+    assert [r.rung for r in m.rungs] == ["sift", "learned"]
     assert m.rung == "learned" and m.verified
-    assert m.rungs[0].n_verified < 40 <= m.rungs[2].n_verified
+    assert m.rungs[0].n_verified < 40 <= m.rungs[1].n_verified
     assert len(m) >= 0.95 * len(pts_t)
     # Every verified match is one of the given correspondences, back in full-size pixels (float32
     # keypoints: to 1e-3 px).
@@ -109,7 +109,8 @@ def test_ladder_climbs_to_the_learned_rung_and_maps_matches_back(wide, tmp_path)
 def test_auto_without_a_model_skips_the_rung_and_says_why(wide, tmp_path, monkeypatch):
     monkeypatch.setenv("GEOFILL_CACHE", str(tmp_path / "empty-cache"))
     monkeypatch.delenv("GEOFILL_MATCHER_MODEL", raising=False)
-    m = match_pair(wide.target, wide.source, wide.hole, replace(STARVED, learned="auto"), SCALE)
+    onnx_auto = replace(STARVED, learned="auto", learned_matcher="onnx", unrelated_max_verified=0)
+    m = match_pair(wide.target, wide.source, wide.hole, onnx_auto, SCALE)
     assert [r.rung for r in m.rungs] == ["sift", "loose"]
     (note,) = [n for n in m.notes if n.startswith("rung learned skipped")]
     assert "SuperPoint+LightGlue (ONNX) weights not available" in note
@@ -121,7 +122,9 @@ def test_required_matcher_that_cannot_be_used_is_one_line(wide, tmp_path, monkey
     monkeypatch.setenv("GEOFILL_CACHE", str(tmp_path / "empty-cache"))
     monkeypatch.delenv("GEOFILL_MATCHER_MODEL", raising=False)
     with pytest.raises(MatcherModelError, match="weights not available") as exc:
-        match_pair(wide.target, wide.source, wide.hole, replace(STARVED, learned="on"), SCALE)
+        match_pair(
+            wide.target, wide.source, wide.hole, replace(STARVED, learned="on", learned_matcher="onnx"), SCALE
+        )
     assert "\n" not in str(exc.value)
     bad = tmp_path / "bad.onnx"
     bad.write_bytes(b"not a model")

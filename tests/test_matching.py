@@ -7,6 +7,7 @@ from __future__ import annotations
 import subprocess
 import sys
 import textwrap
+from functools import partial
 
 import numpy as np
 import pytest
@@ -28,6 +29,8 @@ from geofill.synthetic import SyntheticPair, make_pair
 SCALE = 320 / 1280
 #: Keeps the ASIFT rung small on 320x240 renders (the matching cost grows with the product).
 SMALL_ASIFT = {"asift_max_features": 3000, "asift_max_tilt": 3}
+#: The SIFT ladder alone: the same rungs whether or not the learned extra is installed.
+SiftLadder = partial(MatchingConfig, learned="off")
 
 
 @pytest.fixture(scope="module")
@@ -54,8 +57,8 @@ def _true_F(p: SyntheticPair) -> np.ndarray:
 
 
 def test_easy_pair_stops_at_plain_sift(wide: SyntheticPair) -> None:
-    ladder = match_pair(wide.target, wide.source, wide.hole, MatchingConfig(), SCALE)
-    plain = match_pair(wide.target, wide.source, wide.hole, MatchingConfig(max_rung="sift"), SCALE)
+    ladder = match_pair(wide.target, wide.source, wide.hole, SiftLadder(), SCALE)
+    plain = match_pair(wide.target, wide.source, wide.hole, SiftLadder(max_rung="sift"), SCALE)
     assert ladder.rung == "sift" and ladder.verified and not ladder.budget_spent
     assert [r.rung for r in ladder.rungs] == ["sift"]
     # Exactly the matches plain SIFT gives: an easy pair pays nothing for the ladder.
@@ -67,7 +70,7 @@ def test_easy_pair_stops_at_plain_sift(wide: SyntheticPair) -> None:
 
 def test_climb_keeps_true_matches_and_the_best_rung(wide: SyntheticPair) -> None:
     # A bar no rung reaches: every rung runs, and the richest geometry is returned as weak.
-    cfg = MatchingConfig(min_verified=100_000, time_budget_s=600.0, **SMALL_ASIFT)
+    cfg = SiftLadder(min_verified=100_000, time_budget_s=600.0, **SMALL_ASIFT)
     m = match_pair(wide.target, wide.source, wide.hole, cfg, SCALE)
     by_rung = {r.rung: r for r in m.rungs}
     assert list(by_rung) == ["sift", "loose", "asift", "guided"]
@@ -84,7 +87,7 @@ def test_climb_keeps_true_matches_and_the_best_rung(wide: SyntheticPair) -> None
 
 def test_budget_stops_the_ladder_after_the_first_rung(wide: SyntheticPair) -> None:
     m = match_pair(
-        wide.target, wide.source, wide.hole, MatchingConfig(min_verified=100_000, time_budget_s=0.0), SCALE
+        wide.target, wide.source, wide.hole, SiftLadder(min_verified=100_000, time_budget_s=0.0), SCALE
     )
     assert [r.rung for r in m.rungs] == ["sift"]
     assert m.budget_spent and m.notes[-1] == "time budget 0 s spent before rung loose"
@@ -93,7 +96,7 @@ def test_budget_stops_the_ladder_after_the_first_rung(wide: SyntheticPair) -> No
 
 def test_hole_support_climbs_when_the_hole_is_far_from_every_match(wide: SyntheticPair) -> None:
     # Plenty of matches, but few within 4 px of the hole: the sift rung is weak by support alone.
-    cfg = MatchingConfig(hole_support_radius_px=4.0, min_hole_support=0.99, max_rung="loose")
+    cfg = SiftLadder(hole_support_radius_px=4.0, min_hole_support=0.99, max_rung="loose")
     m = match_pair(wide.target, wide.source, wide.hole, cfg, SCALE)
     assert m.rungs[0].n_verified >= cfg.min_verified
     assert "of the hole near a verified match" in m.rungs[0].weak and len(m.rungs) == 2
@@ -182,12 +185,12 @@ def test_featureless_and_repetitive_images_never_raise(side: int) -> None:
     flat = np.full((side, side + 20, 3), 128, np.uint8)
     hole = np.zeros(flat.shape[:2], bool)
     hole[side // 3 : side // 2, side // 3 : side // 2] = True
-    m = match_pair(flat, flat, hole, MatchingConfig(), side / 1280)
+    m = match_pair(flat, flat, hole, SiftLadder(), side / 1280)
     assert m.too_few and len(m) == 0 and m.F is None and not m.verified
     # A periodic pattern: many identical descriptors, matches at repeated positions.
     yy, xx = np.mgrid[0:side, 0 : side + 20]
     stripes = np.repeat((((xx // 6 + yy // 6) % 2) * 255).astype(np.uint8)[..., None], 3, axis=2)
-    m = match_pair(stripes, np.roll(stripes, 3, axis=1), hole, MatchingConfig(time_budget_s=1.0), side / 1280)
+    m = match_pair(stripes, np.roll(stripes, 3, axis=1), hole, SiftLadder(time_budget_s=1.0), side / 1280)
     assert m.pts_target.shape == m.pts_source.shape == (len(m), 2)
 
 
@@ -229,8 +232,8 @@ def test_downsized_sift_reports_positions_in_the_images_pixels() -> None:
     of the full-size pair (a 640x480 render matched at a 320-px long side)."""
     p = make_pair(0, width=640, height=480, baseline=2.0)
     p.target[p.hole] = 0
-    full = match_pair(p.target, p.source, p.hole, MatchingConfig(max_rung="sift"), 0.5)
-    small = match_pair(p.target, p.source, p.hole, MatchingConfig(max_rung="sift", sift_max_side=320), 0.5)
+    full = match_pair(p.target, p.source, p.hole, SiftLadder(max_rung="sift"), 0.5)
+    small = match_pair(p.target, p.source, p.hole, SiftLadder(max_rung="sift", sift_max_side=320), 0.5)
     assert len(small) >= 40 and len(small) < len(full)
     err_small = _reprojection_px(p, small.pts_target, small.pts_source)
     err_full = _reprojection_px(p, full.pts_target, full.pts_source)

@@ -342,7 +342,7 @@ def test_rotation_only_pose_is_skipped(scene):
 
 
 # ---------------------------------------------------------------------------------------------
-# Pipeline and focal refinement (issue 7)
+# Pipeline and focal refinement
 
 
 def test_pipeline_renders_with_the_optimised_geometry():

@@ -17,6 +17,7 @@ import subprocess
 import sys
 import time
 import typing
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -26,11 +27,12 @@ pytest.importorskip("fastapi", reason="the server extra is not installed")
 pytest.importorskip("httpx", reason="FastAPI's TestClient needs httpx")
 import psutil
 from fastapi.testclient import TestClient
-from PIL import Image
+from PIL import ExifTags, Image
 
+from geofill.io import read_image
 from geofill.server.app import create_app
 from geofill.server.jobs import ServerSettings
-from geofill.server.schema import config_fields, flatten
+from geofill.server.schema import LOCKED_KEYS, config_fields, flatten
 from geofill.synthetic import blanked, make_pair
 
 W, H = 320, 240
@@ -156,10 +158,45 @@ def test_fallback_is_reported_with_its_reason(tmp_path):
         job_id = client.post("/api/v1/fill", files=parts, data={"config": config}).json()["id"]
         snap = wait_for(client, job_id)
         assert snap["state"] == "done" and snap["status"] == "single_image"
-        assert snap["fallbacks"][0].startswith("reference 1: it covers only")
+        # In plain words for the page; the technical reason is in the report.
+        assert snap["fallbacks"] == ["reference 1 was not used: it does not see what is behind the hole"]
+        assert snap["report"]["references"][0]["reason"].startswith("it covers only")
         assert snap["summary"] == "100 % painted"
         out = np.array(Image.open(io.BytesIO(client.get(f"/api/v1/jobs/{job_id}/result").content)))
         assert np.array_equal(out[~pair.hole], pair.target[~pair.hole])
+
+
+def _jpeg_with_lens(a: np.ndarray) -> bytes:
+    exif = Image.Exif()
+    exif[ExifTags.Base.Make], exif[ExifTags.Base.Model] = "Apple", "iPhone 4S"
+    lens = exif.get_ifd(ExifTags.IFD.Exif)
+    lens[ExifTags.Base.FocalLength], lens[ExifTags.Base.FocalLengthIn35mmFilm] = 4.28, 35
+    buf = io.BytesIO()
+    Image.fromarray(a).save(buf, "JPEG", quality=95, exif=exif.tobytes())
+    return buf.getvalue()
+
+
+def test_result_keeps_the_targets_exif_and_progress_only_grows(tmp_path, upload, pair):
+    """Three references: the done fraction the API reports never goes back; the result carries
+    the target's EXIF, so a fill started again from it has the same focal prior."""
+    parts = files(upload, n_sources=3, target=_jpeg_with_lens(upload["target_array"]))
+    app = create_app(ServerSettings(workers=1, temp_parent=str(tmp_path)))
+    with TestClient(app) as client:
+        t0 = time.monotonic()
+        job_id = client.post("/api/v1/fill", files=parts).json()["id"]
+        seen = []
+        while (snap := client.get(f"/api/v1/jobs/{job_id}").json())["state"] in ("queued", "running"):
+            seen.append(snap["progress"])
+            time.sleep(0.01)
+        wall = time.monotonic() - t0
+        assert snap["state"] == "done", snap
+        assert seen == sorted(seen) and len(set(seen)) >= 5, seen
+        assert 0 < snap["wall_s"] <= wall
+        result = client.get(f"/api/v1/jobs/{job_id}/result").content
+    (tmp_path / "result.png").write_bytes(result)
+    (tmp_path / "target.jpg").write_bytes(parts[0][1][1])
+    kept, given = read_image(tmp_path / "result.png").exif, read_image(tmp_path / "target.jpg").exif
+    assert kept == given and kept.focal_mm == 4.28 and kept.body == "Apple iPhone 4S"
 
 
 def test_cancel_terminates_the_running_worker_and_a_dead_worker_fails_its_job(tmp_path, upload):
@@ -229,6 +266,17 @@ def test_client_filenames_never_become_paths(idle, upload, tmp_path):
     ]
 
 
+def _png_header(width: int, height: int) -> bytes:
+    """A PNG whose header claims width x height RGB pixels and whose data is a few bytes."""
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return len(data).to_bytes(4, "big") + kind + data + zlib.crc32(kind + data).to_bytes(4, "big")
+
+    ihdr = width.to_bytes(4, "big") + height.to_bytes(4, "big") + bytes([8, 2, 0, 0, 0])
+    body = chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(b"\0" * 16)) + chunk(b"IEND", b"")
+    return b"\x89PNG\r\n\x1a\n" + body
+
+
 @pytest.mark.parametrize(
     ("parts", "status", "words"),
     [
@@ -240,7 +288,16 @@ def test_client_filenames_never_become_paths(idle, upload, tmp_path):
         ({"mask": "small"}, 400, "mask"),
         ({"mask": "empty"}, 400, "no hole"),
         ({"target": "huge-bytes"}, 413, "upload limit of 400000 bytes"),
-        ({"target": "huge-pixels"}, 413, "max_pixels 200000"),
+        (
+            {"target": "huge-pixels"},
+            413,
+            "target: 500x500 = 250000 pixels is over the limit of 200000 pixels (max_pixels)",
+        ),
+        (
+            {"target": "bomb"},
+            413,
+            "target: 10000000000 pixels is over the limit of 200000 pixels (max_pixels)",
+        ),
         ({"sources": 4}, 413, "at most 3 (max_sources)"),
     ],
 )
@@ -252,12 +309,13 @@ def test_bad_uploads_are_4xx_naming_the_problem(idle, upload, parts, status, wor
         "empty": png(np.zeros((H, W), np.uint8)),
         "huge-bytes": np.random.default_rng(0).integers(0, 255, 500_000, np.uint8).tobytes(),
         "huge-pixels": png(np.zeros((500, 500, 3), np.uint8)),
+        "bomb": _png_header(100_000, 100_000),  # over Pillow's own limit: its words are not quoted
     }
     n = parts.pop("sources", 1)
     replace = {k: special.get(v, v) if isinstance(v, str) else v for k, v in parts.items()}
     r = client.post("/api/v1/fill", files=files(upload, n_sources=n, **replace))
     assert r.status_code == status, r.text
-    assert words in r.json()["detail"]
+    assert words in r.json()["detail"] and r.json()["detail"].count(" pixels") <= 2
     assert app.state.jobs.counts() == {}
     assert list(app.state.jobs.root.iterdir()) == []  # the upload's files are gone
 
@@ -280,6 +338,33 @@ def test_bad_config_is_422_naming_the_key(idle, upload, config, words):
     r = client.post("/api/v1/fill", files=files(upload), data={"config": config})
     assert r.status_code == 422, r.text
     assert words in r.json()["detail"]
+
+
+def test_openapi_lists_the_errors_each_route_returns(idle, upload):
+    client, _, _ = idle
+    paths = client.get("/openapi.json").json()["paths"]
+    job = "/api/v1/jobs/{job_id}"
+    listed = {
+        ("post", "/api/v1/fill"): {"202", "400", "413", "415", "422", "429"},
+        ("get", job): {"200", "404"},
+        ("delete", job): {"200", "404"},
+        ("get", f"{job}/result"): {"200", "404", "409"},
+        ("get", f"{job}/coverage"): {"200", "404", "409"},
+    }
+    for (method, path), statuses in listed.items():
+        responses = paths[path][method]["responses"]
+        assert statuses <= set(responses), (method, path, sorted(responses))
+        assert all(responses[s].get("description") for s in statuses)
+    # and they are the statuses these routes answer with
+    assert (
+        client.post("/api/v1/fill", content=b"x", headers={"content-type": "text/plain"}).status_code == 415
+    )
+    unknown = "A" * 32
+    assert client.get(f"/api/v1/jobs/{unknown}").status_code == 404
+    assert client.delete(f"/api/v1/jobs/{unknown}").status_code == 404
+    assert client.get(f"/api/v1/jobs/{unknown}/result").status_code == 404
+    queued = client.post("/api/v1/fill", files=files(upload)).json()["id"]
+    assert client.get(f"/api/v1/jobs/{queued}/coverage").status_code == 409
 
 
 def test_malformed_requests_are_4xx(idle, upload):
@@ -309,6 +394,17 @@ def test_unknown_or_path_like_job_ids_are_404(idle, job_id):
     assert client.delete(f"/api/v1/jobs/{job_id}").status_code == 404
 
 
+def test_no_request_names_a_server_file_or_starts_a_download(idle, upload):
+    """Every key that reads a file on the server or downloads during a fill is locked, so a new
+    such key cannot slip through unlocked."""
+    client, _, _ = idle
+    risky = [f.key for f in config_fields() if f.key.endswith(("_model", "_path", ".download"))]
+    assert {"matching.learned_model", "matching.download", "depth.model_path"} <= set(risky)
+    assert set(risky) <= LOCKED_KEYS
+    r = client.post("/api/v1/fill", files=files(upload), data={"config": '{"matching": {"download": true}}'})
+    assert r.status_code == 422 and "matching.download" in r.json()["detail"]
+
+
 def test_config_endpoints_and_docs_come_from_fillconfig(idle):
     client, _, _ = idle
     cfg = client.get("/api/v1/config").json()
@@ -328,6 +424,33 @@ def test_config_endpoints_and_docs_come_from_fillconfig(idle):
     assert docs.status_code == 200 and "cdn" not in docs.text.lower()
     limits = client.get("/api/v1/limits").json()
     assert limits["max_sources"] == 3 and "match" in limits["stages"]
+
+
+def test_page_fields_carry_bounds_sections_and_the_common_keys(idle):
+    """Each number's allowed range (a list's: its items' and its length) as the config declares it,
+    the sections in the pipeline's order with their descriptions, and the keys a form offers first."""
+    from geofill.config import FillConfig, GeometryConfig
+
+    client, _, _ = idle
+    body = client.get("/api/v1/config/fields").json()
+    fields = {f["key"]: f for f in body["fields"]}
+    closed = {"lo_open": False, "hi_open": False}
+    assert fields["matching.ratio"]["range"] == {"lo": 0, "hi": 1, **closed}
+    assert fields["working_max_side"]["range"] == {"lo": 64, "hi": 16384, **closed}
+    assert fields["intrinsics.focal_px"]["range"] == {"lo": 0, "hi": 1e6, "lo_open": True, "hi_open": False}
+    target = fields["intrinsics.target"]
+    assert target["length"] == [4, 4] and target["range"]["lo_open"] and target["range"]["lo"] == 0
+    assert fields["optimize.edge_blur_kernels"]["range"] == {"lo": 1, "hi": 255, **closed}
+    assert fields["depth.backend"]["range"] is None and fields["depth.backend"]["length"] is None
+    numbers = [k for k, f in fields.items() if f["kind"] in ("int", "float")]
+    assert len(numbers) > 80 and all(fields[k]["range"] for k in numbers)  # every number is bounded
+    hints = typing.get_type_hints(FillConfig)
+    sections = [f.name for f in dataclasses.fields(FillConfig) if dataclasses.is_dataclass(hints[f.name])]
+    assert [s["key"] for s in body["sections"]] == sections
+    geometry = next(s for s in body["sections"] if s["key"] == "geometry")
+    assert geometry["description"] == GeometryConfig.__doc__.strip()
+    assert 4 <= len(body["common"]) <= 8
+    assert all(k in fields and not fields[k]["locked"] for k in body["common"])
 
 
 def test_page_and_its_files_are_served_without_external_references(idle):

@@ -8,8 +8,10 @@ import json
 import logging
 import re
 
+import numpy as np
 import pytest
 
+from geofill.config import FillConfig
 from geofill.pipeline import REFERENCE_STAGES, fill
 from geofill.progress import Progress
 from geofill.synthetic import make_pair
@@ -91,3 +93,28 @@ def test_an_embedder_filters_progress_with_logging(caplog):
     finally:
         logger.removeFilter(no_backend_lines)
     assert [r.getMessage() for r in caplog.records] == ["reference 2 cannot help: too few matches"]
+
+
+class _Fractions(Progress):
+    """A quiet progress that keeps every done fraction it reports."""
+
+    def __init__(self) -> None:
+        super().__init__(quiet=True)
+        self.seen: list[float] = []
+
+    def on_fraction(self, before: float, now: float) -> None:
+        self.seen.append(now)
+
+
+def test_done_fraction_of_a_three_reference_fill_only_grows():
+    """Three references, two run at a time in threads, one that cannot help (noise): the fraction
+    the progress reports grows one stage at a time up to 1, never back."""
+    pair = make_pair(seed=0, width=320, height=240)
+    noise = np.random.default_rng(0).integers(0, 256, pair.source.shape, dtype=np.uint8)
+    prog = _Fractions()
+    cfg = FillConfig().updated({"fusion.parallel": 2})
+    result = fill(pair.target, pair.hole, [pair.source, noise, pair.source], cfg, progress=prog)
+    assert [r["status"] for r in result.report.references] == ["used", "dropped", "used"]
+    assert prog.seen == sorted(prog.seen) and prog.seen[-1] == 1.0
+    assert len(prog.seen) > 20  # 1 + 3 x 10 + 1 + 2 stages planned; the dropped one jumps ahead
+    assert 0 < result.report.wall_s < sum(result.report.timings_s.values())

@@ -1,15 +1,19 @@
 """Wide baselines: the wide DEV pairs and the towers filled with plain SIFT only (the ladder capped
-at its first rung: what a fill did before the ladder) and with the default ladder, against the
-homography baseline, on the evaluation's 100-px brush holes (seed 0).
+at its first rung: what a fill did before the ladder), with the ladder without the learned matcher
+(``nolearned``: a base install), with the default ladder (``ladder``: with the ``learned`` extra
+when it is installed) and with the learned rung cross-checking a verified SIFT geometry too
+(``crosscheck``), against the homography baseline, on the evaluation's 100-px brush
+holes (seed 0).
 
-    .venv/bin/python benchmarks/quality/wide_results.py [--pairs DIR ...] [--seed 0]
+    .venv/bin/python benchmarks/quality/wide_results.py [--pairs DIR ...] [--seed 0] [--variants ...]
 
 Per pair and variant: whether the fill used the reference or fell back to single-image inpainting,
 the rung its matches came from, verified matches, the joint optimisation's status (``skipped``:
 the evidence was too thin, or the pose failed) and its feature matches on the source depth, the
 rotation / translation-direction error of the fill's final pose against the ground truth (where
-the pair has one), hole PSNR, and the fill's time (in process, one run: the pairs and variants
-are interleaved on a shared CPU). Figures, not a test.
+the pair has one), hole PSNR, the learned rung's wall and CPU time (``-`` where it did not run),
+and the fill's time (in process, one run: the pairs and variants are interleaved on a shared CPU).
+Figures, not a test.
 """
 
 from __future__ import annotations
@@ -24,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from geofill.camera import pose_errors_deg
-from geofill.config import FillConfig
+from geofill.config import FillConfig, parse_overrides
 from geofill.evaluation.baselines import homography_fill_detailed
 from geofill.evaluation.metrics import psnr
 from geofill.evaluation.pairs import load_pairs, pair_mask
@@ -34,6 +38,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository r
 from benchmarks.common import PAIRS
 
 WIDE = ("dev_wide_", "dev_mast3r_nle_tower_")
+VARIANTS = {
+    "sift": {"matching.max_rung": "sift", "matching.learned": "off"},
+    "nolearned": {"matching.learned": "off"},
+    "ladder": {},
+    "crosscheck": {"matching.learned_cross_check": True},
+}
 
 
 def _pose_errors(pair, result) -> tuple[float, float]:
@@ -52,12 +62,14 @@ def main(argv: list[str] | None = None) -> int:
         "--pairs", action="append", help="pair folder(s) (default: the wide DEV pairs and towers)"
     )
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--variants", nargs="+", default=["sift", "nolearned", "ladder"], choices=VARIANTS)
+    ap.add_argument("--set", action="append", metavar="KEY=VALUE", help="config override of every variant")
     args = ap.parse_args(argv)
     pairs = load_pairs(args.pairs or [str(PAIRS)])
     if not args.pairs:
         pairs = [p for p in pairs if p.id.startswith(WIDE)]
-    cfg = FillConfig()
-    variants = {"sift": cfg.updated({"matching.max_rung": "sift"}), "ladder": cfg}
+    cfg = FillConfig().updated(parse_overrides(args.set))
+    variants = {v: cfg.updated(VARIANTS[v]) for v in args.variants}
     head = (
         "variant",
         "status",
@@ -69,6 +81,8 @@ def main(argv: list[str] | None = None) -> int:
         "t_err",
         "PSNR_h",
         "homog",
+        "learned_s",
+        "cpu_s",
         "time_s",
     )
     print(f"{'pair':<38s} " + " ".join(f"{h:>9s}" for h in head))
@@ -89,6 +103,9 @@ def main(argv: list[str] | None = None) -> int:
             took = time.perf_counter() - t0
             match = result.report.references[0].get("match", {})
             opt = result.report.references[0].get("optimize", {})
+            learned = [r for r in match.get("rungs", []) if r["rung"] == "learned"]
+            l_wall = f"{learned[0]['time_s']:.2f}" if learned else "-"
+            l_cpu = f"{learned[0]['cpu_s']:.2f}" if learned else "-"
             fell_back = result.report.status != "reference"
             r_err, t_err = _pose_errors(pair, result)
             score = psnr(result.image, pair.target, hole)
@@ -97,7 +114,7 @@ def main(argv: list[str] | None = None) -> int:
                 f"{pair.id[:38]:<38s} {name:>9s} {'fallback' if fell_back else 'reference':>9s} "
                 f"{match.get('rung', '-'):>9s} {match.get('n_verified', 0):>9d} {opt.get('status', '-'):>9s} "
                 f"{opt.get('n_features', 0):>9d} {r_err:>9.2f} {t_err:>9.2f} "
-                f"{score:>9.2f} {homog:>9.2f} {took:>9.2f}",
+                f"{score:>9.2f} {homog:>9.2f} {l_wall:>9s} {l_cpu:>9s} {took:>9.2f}",
                 flush=True,
             )
     for name, rows in summary.items():

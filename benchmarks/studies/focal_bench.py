@@ -1,4 +1,4 @@
-"""Focal-length estimation (issue 7): accuracy of each method, its effect on the pose and on the fill.
+"""Focal-length estimation: accuracy of each method, its effect on the pose and on the fill.
 
     .venv/bin/python benchmarks/studies/focal_bench.py [--pairs ../shared/data/pairs] [--seeds 3]
                                                        [--skip-synthetic] [--skip-psnr] [--psnr-seeds 0,1,2]

@@ -1,4 +1,4 @@
-"""Joint pose-depth optimisation (issue 5): both solvers from the same start, on synthetic scenes with
+"""Joint pose-depth optimisation: both solvers from the same start, on synthetic scenes with
 a perturbed start and on the real pairs. Figures, not a test.
 
     .venv/bin/python benchmarks/studies/optimize_bench.py synthetic [--scenes 3] [--size 1280x720]
@@ -12,7 +12,7 @@ depth scaled by 1 + ``--scale``); SIFT matches and pose inliers come from the pi
 final rotation / translation-direction / depth-scale errors, the objective and the wall time of each
 solver. ``real``: the pipeline's own start (pose, sparse depth) on each pair with the evaluation's
 brush hole (seed 0); prints the objective of both solvers and, where meta.json has a GT pose, the
-rotation and translation-direction errors before and after. ``focal`` (issue 7): synthetic pairs
+rotation and translation-direction errors before and after. ``focal``: synthetic pairs
 whose true focal is ``--ratios`` times the assumed default, filled with and without
 ``optimize.refine_focal``; prints the focal, the pose errors and the hole PSNR. ``eval``: ``geofill
 eval`` with the depth stage's result cached per pair, so that every method starts from the same

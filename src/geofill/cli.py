@@ -11,12 +11,16 @@ import gc
 import os
 import signal
 import sys
+import time
 import typing
 from pathlib import Path
 
 from .config import PRESETS, DepthConfig, FillConfig, choices, parse_overrides
-from .errors import EXIT_FELL_BACK, EXIT_ITEMS_FAILED, ConfigError, GeoFillError
+from .errors import EXIT_FELL_BACK, EXIT_ITEMS_FAILED, ConfigError, GeoFillError, Terminated
 from .progress import Progress
+
+#: What ``geofill --help`` says the program is (plain text: argparse prints it as it is).
+DESCRIPTION = "Fill a hole in a photo with what other photos of the same scene show."
 
 _ALLOW_FALLBACK_HELP = (
     f"exit 0 even when a fill falls back to single-image inpainting (default: exit {EXIT_FELL_BACK})"
@@ -129,6 +133,7 @@ def cmd_fill(args: argparse.Namespace) -> int:
     from .pipeline import fill_loaded
     from .preflight import check_resources
 
+    started = time.perf_counter()
     cfg = _config_from_args(args)
     check_output_path(args.output)
     lossy = Path(args.output).suffix.lower() in _LOSSY_OUTPUTS
@@ -157,7 +162,7 @@ def cmd_fill(args: argparse.Namespace) -> int:
     ]
     # The depth file and the depth model belong to the (first) reference the depth stage runs on.
     check_resources(cfg, (sources[0].pixels.shape[1], sources[0].pixels.shape[0]))
-    prog = Progress(quiet=args.quiet, time_budget_s=cfg.time_budget_s)
+    prog = Progress(quiet=args.quiet, time_budget_s=cfg.time_budget_s, verbose=args.verbose)
     if lossy:
         prog.say(
             f"note: {Path(args.output).suffix} output re-encodes every pixel, those outside the hole too; "
@@ -166,28 +171,31 @@ def cmd_fill(args: argparse.Namespace) -> int:
     metadata = None if args.strip_metadata else target.metadata
     if metadata is not None and metadata.note:
         prog.say(f"note: {args.target}: {metadata.note}")
+    for image in (target, *sources):
+        if image.metadata.unread:
+            prog.say(f"note: {image.path}: {image.metadata.unread}")
     for path, m, masked in zip(source_paths, mask_paths, source_masks, strict=True):
         if masked is not None:
             prog.say(f"{path}: {100 * masked.mean():.0f}% of it is never copied (masked by {m})")
-    result = fill_loaded(target, mask, sources, cfg, source_masks=source_masks, progress=prog)
+    names = [Path(p).name for p in source_paths]
+    result = fill_loaded(
+        target, mask, sources, cfg, source_masks=source_masks, source_names=names, progress=prog
+    )
     write_image_atomic(args.output, result.image, metadata=metadata, quality=args.quality)
     if args.debug_dir:
         write_debug(args.debug_dir, result, mask, cfg)
     r = result.report
-    shares = ", ".join(
-        f"{100 * f:.0f}% from reference {i}" for i, f in enumerate(r.supplied_fraction, 1) if f > 0
-    )
-    how = f"{shares}, {100 * r.painted_fraction:.0f}% painted" if shares else "by single-image inpainting"
     refused = r.refused_words()
     prog.say(
-        f"wrote {args.output}: hole of {r.hole_pixels} px filled {how} in {sum(r.timings_s.values()):.2f} s"
-        + (f"; {refused}" if refused else "")
+        f"wrote {args.output} in {time.perf_counter() - started:.1f} s: "
+        f"{r.filled_words(names)}" + (f"; {refused}" if refused else "")
     )
     if r.status == "reference" or args.allow_fallback:
         return 0
     # Said even with --quiet: a script must be able to tell this from a fill from the source.
     print(
-        f"geofill: fell back to single-image inpainting ({'; '.join(r.fallbacks)}); "
+        f"geofill: no reference photo could be used, the whole hole was painted from its surroundings "
+        f"({'; '.join(r.dropped_words()) or 'the references supplied no pixel'}); "
         f"exit status {EXIT_FELL_BACK} (--allow-fallback accepts it)",
         file=sys.stderr,
     )
@@ -329,7 +337,7 @@ class _Parser(argparse.ArgumentParser):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(prog="geofill", description=__doc__.splitlines()[0])
+    parser = _Parser(prog="geofill", description=DESCRIPTION)
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("fill", help="fill the hole of TARGET with content from one or more SOURCE photos")
@@ -369,7 +377,14 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="do not copy the target's EXIF (GPS included) and ICC profile into the output",
     )
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress messages")
+    talk = p.add_mutually_exclusive_group()
+    talk.add_argument("-q", "--quiet", action="store_true", help="no progress messages")
+    talk.add_argument(
+        "-v",
+        "--verbose",
+        action="store_true",
+        help="also every stage's time and technical summary, per reference (as in --debug-dir's report.json)",
+    )
     p.add_argument("--allow-fallback", action="store_true", help=_ALLOW_FALLBACK_HELP)
     _add_config_flags(p)
     p.set_defaults(func=cmd_fill)
@@ -383,7 +398,9 @@ def build_parser() -> argparse.ArgumentParser:
         "it (any image format; never a target or reference itself), or the manifest's source_masks "
         "column. Exit status: 0 when "
         f"every item was filled from a reference, {EXIT_FELL_BACK} when some fell back to single-image "
-        f"inpainting (unless --allow-fallback), {EXIT_ITEMS_FAILED} when some failed, 130 on Ctrl-C.",
+        f"inpainting (unless --allow-fallback), {EXIT_ITEMS_FAILED} when some failed, 130 on Ctrl-C, "
+        "143 on SIGTERM (the finished items are kept in results.jsonl either way, and --resume runs "
+        "the others).",
     )
     p.add_argument("--images", metavar="DIR", help="folder of target images")
     p.add_argument(
@@ -458,13 +475,8 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-class _Terminated(BaseException):
-    """SIGTERM as an exception (a BaseException, like KeyboardInterrupt, so that no handler meant
-    for errors swallows it): cleanup code runs and no partial output stays behind."""
-
-
 def _on_sigterm(signum: int, frame: object) -> None:
-    raise _Terminated
+    raise Terminated
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -483,7 +495,7 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("geofill: interrupted", file=sys.stderr)
         return 130
-    except _Terminated:
+    except Terminated:
         print("geofill: terminated", file=sys.stderr)
         return 128 + signal.SIGTERM
     finally:

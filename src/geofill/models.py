@@ -111,7 +111,24 @@ def cmd_list(args: argparse.Namespace, cfg: FillConfig) -> int:
             print(f"  found: {got.describe()}")
         else:
             print(f"  not found: {got.reason}")
+    list_packaged()
     return 0
+
+
+def list_packaged() -> None:
+    """The weights that ship inside an installed package (nothing to download or cache)."""
+    from .match import xfeat
+
+    print(
+        f"{xfeat.NAME}: {xfeat.LICENSE}; learned matching rung (matching.learned_matcher = xfeat-lighterglue)"
+    )
+    missing = xfeat.missing_modules()
+    if missing:
+        print(f"  not installed (missing {', '.join(missing)}): {xfeat.INSTALL}")
+        return
+    for w in xfeat.shipped_weights():
+        check = "matches the pinned SHA-256" if w.verified else f"DIFFERS from the pinned {w.expected_sha256}"
+        print(f"  {w.filename}: from the {w.origin} ({w.path}); sha256 {w.sha256} ({check})")
 
 
 def cmd_download(args: argparse.Namespace, cfg: FillConfig) -> int:

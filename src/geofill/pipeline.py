@@ -64,6 +64,21 @@ REFERENCE_STAGES: tuple[tuple[str, str], ...] = (
     ("screen", "screened"),
 )
 
+#: Why a reference dropped at a stage could not help, in the words a photographer understands (the
+#: technical reason stays in the report).
+DROPPED_WORDS: dict[str, str] = {
+    "prepare": "it could not be prepared for matching",
+    "match": "it does not show enough of the same scene",
+    "focal": "it does not show enough of the same scene",
+    "pose": "it does not show enough of the same scene",
+    "triangulate": "the scene's depth could not be measured from it",
+    "depth": "the scene's depth could not be measured from it",
+    "optimize": "the scene's depth could not be measured from it",
+    "render": "it does not see what is behind the hole",
+    "refine": "it does not see what is behind the hole",
+    "screen": "it does not see what is behind the hole",
+}
+
 
 @dataclass(frozen=True)
 class FillContext:
@@ -89,6 +104,7 @@ class ReferenceArtifacts:
     source: np.ndarray  # HxWx3 uint8 as given
     exif: ExifLens | None = None
     exclude: np.ndarray | None = None  # HxW bool at the source's size: pixels never to copy
+    name: str = ""  # what the user calls it (its file name), for the plain messages
     views: WorkingViews | None = None
     matches: Matches | None = None
     focal: FocalEstimate | None = None
@@ -100,7 +116,13 @@ class ReferenceArtifacts:
     refined: RefinedRender | None = None
     screened: ScreenedRender | None = None
     dropped: str = ""  # the reason this reference cannot help ("" while it can)
+    dropped_at: str = ""  # the stage that found it out
     timings_s: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def dropped_words(self) -> str:
+        """Why this reference was dropped, in plain words ("" when it was not)."""
+        return DROPPED_WORDS.get(self.dropped_at, self.dropped) if self.dropped else ""
 
     @property
     def usable(self) -> bool:
@@ -110,7 +132,12 @@ class ReferenceArtifacts:
     def report(self) -> dict[str, Any]:
         """This reference's report: every stage reached, by stage name, plus the intrinsics used."""
         out: dict[str, Any] = {"index": self.index, "status": "dropped" if self.dropped else "used"}
+        if self.name:
+            out["name"] = self.name
         out["reason"] = self.dropped
+        if self.dropped:
+            out["reason_words"] = self.dropped_words
+            out["dropped_at"] = self.dropped_at
         K = self.intrinsics()
         if K is not None:
             h_t, w_t = self.views.target_shape
@@ -151,7 +178,36 @@ class FillReport:
     fusion: dict[str, Any] = field(default_factory=dict)
     inpaint_method: str = ""
     depth_choice: str = ""
+    #: Seconds per stage, summed over the references (which may run at the same time).
     timings_s: dict[str, float] = field(default_factory=dict)
+    wall_s: float = 0.0  # the fill's elapsed time
+
+    def dropped_words(self) -> list[str]:
+        """Each reference that could not help, with why, in plain words.
+
+        >>> FillReport(references=[{"index": 2, "status": "dropped", "reason_words": "it is blurred"}]).dropped_words()
+        ['reference 2 was not used: it is blurred']
+        """
+        return [
+            f"{_label(r['index'], r.get('name', ''))} was not used: {r['reason_words']}"
+            for r in self.references
+            if r.get("status") == "dropped"
+        ]
+
+    def filled_words(self, names: Sequence[str] | None = None) -> str:
+        """Where the hole's pixels came from, in plain words; ``names`` name the references (their
+        files) instead of their numbers.
+
+        >>> FillReport(supplied_fraction=[0.25, 0.0], painted_fraction=0.75).filled_words(["a.jpg", "b.jpg"])
+        '25% of the hole from a.jpg, 75% painted from its surroundings'
+        """
+        label = (lambda i: names[i - 1]) if names else (lambda i: f"reference {i}")
+        parts = [
+            f"{100 * f:.0f}% from {label(i)}" for i, f in enumerate(self.supplied_fraction, 1) if f >= 0.005
+        ]
+        if self.painted_fraction >= 0.005 or not parts:
+            parts.append(f"{100 * self.painted_fraction:.0f}% painted from its surroundings")
+        return f"{parts[0].replace('% ', '% of the hole ', 1)}" + "".join(f", {p}" for p in parts[1:])
 
     def to_dict(self) -> dict[str, Any]:
         return {f.name: getattr(self, f.name) for f in fields(self)}
@@ -165,6 +221,7 @@ class FillReport:
         why = {
             "removed_object": "the references showed the removed object",
             "masked": "it was masked in the references",
+            "stranger": "the references showed something there that your photo does not show around it",
         }
         parts = [
             f"{100 * f:.0f}% of the hole was not copied because {why[k]}"
@@ -195,8 +252,10 @@ def prepare_fill(
     cfg: FillConfig,
     target_exif: ExifLens | None = None,
     say: Callable[[str], None] | None = None,
+    detail: Callable[[str], None] | None = None,
 ) -> FillContext:
-    """Check the inputs, blank the hole, and resolve the depth backend and the inpainter once."""
+    """Check the inputs, blank the hole, and resolve the depth backend and the inpainter once;
+    ``say`` is told of model downloads, ``detail`` which depth backend was chosen and why."""
     target = as_rgb_uint8(target)
     # The depth file and the depth model belong to the (first) reference the depth stage runs on.
     check_resources(cfg, (sources[0].shape[1], sources[0].shape[0]))
@@ -220,8 +279,8 @@ def prepare_fill(
     target = target.copy()
     target[hole] = 0
     choice = choose_backend(cfg.depth, say)
-    if say is not None:
-        say(f"depth backend: {choice.reason}")
+    if detail is not None:
+        detail(f"depth backend: {choice.reason}")
     return FillContext(target, hole, shown, target_exif, choice, get_inpainter(cfg.inpaint, say), cfg)
 
 
@@ -242,7 +301,7 @@ def run_reference(
     cfg, a = ctx.cfg, ref
     steps: dict[str, Callable[[ReferenceArtifacts], Any]] = {
         "prepare": lambda a: prepare_views(ctx.target, ctx.hole, a.source, cfg, ctx.target_exif, a.exif),
-        "match": lambda a: match_pair(a.views.target_gray, a.views.source_gray, a.views.hole, cfg.matching, a.views.px_scale),
+        "match": lambda a: related(match_pair(a.views.target_gray, a.views.source_gray, a.views.hole, cfg.matching, a.views.px_scale, (a.views.K_target.K, a.views.K_source.K))),
         "focal": lambda a: estimate_focal(a.matches, a.views.K_target, a.views.K_source, cfg.intrinsics, a.views.ransac_px),
         "pose": lambda a: usable_pose(estimate_pose(a.matches, a.focal.K_target, a.focal.K_source, cfg.geometry, cfg.matching, a.views.px_scale)),
         "triangulate": lambda a: triangulate_inliers(a.matches, a.pose, a.focal, cfg),
@@ -250,9 +309,9 @@ def run_reference(
         "optimize": lambda a: optimize_geometry(a.views, a.focal, a.pose, a.depth, a.matches, cfg.optimize),
         "render": lambda a: render_reference(a.geometry, a.source, ctx.hole, cfg.render, render_margin_px(cfg)),
         "refine": lambda a: refine_render(ctx.target, ctx.hole, a.source, a.render.render, cfg.refine),
-        "screen": lambda a: screen_render(a.refined, ctx.hole, a.source, ctx.shown, a.exclude, a.views, a.matches, a.focal, a.pose, cfg),
+        "screen": lambda a: screen_render(a.refined, ctx.target, ctx.hole, a.source, ctx.shown, a.exclude, a.views, a.matches, a.focal, a.pose, cfg),
     }  # fmt: skip
-    for stage, name in REFERENCE_STAGES:
+    for i, (stage, name) in enumerate(REFERENCE_STAGES):
         if a.dropped:
             break
         if getattr(a, name) is None:
@@ -261,13 +320,28 @@ def run_reference(
                     result = steps[stage](a)
                     notes.append(result.summary())
             except ReferenceUnusable as exc:
-                prog.say(f"reference {a.index} cannot help: {exc}")
-                a = replace(a, dropped=str(exc))
+                a = replace(a, dropped=str(exc), dropped_at=stage)
+                prog.detail(f"reference {a.index} cannot help: {exc}")
+                prog.say(f"{_label(a.index, a.name)} was not used: {a.dropped_words}")
+                prog.advance(len(REFERENCE_STAGES) - i)  # this stage and the ones it will not run
             else:
                 a = replace(a, **{name: result})
         if stage == until:
             break
     return replace(a, timings_s={**ref.timings_s, **prog.timings})
+
+
+def _label(index: int, name: str) -> str:
+    """How the plain messages name a reference: "reference 2", or "reference 2 (left.jpg)"."""
+    return f"reference {index} ({name})" if name else f"reference {index}"
+
+
+def related(matches: Matches) -> Matches:
+    """``matches`` unless the ladder found that the reference shows another scene (then it cannot
+    help, and the costly stages are not run)."""
+    if matches.unrelated:
+        raise ReferenceUnusable(matches.unrelated)
+    return matches
 
 
 def usable_pose(pose: PoseEstimate) -> PoseEstimate:
@@ -328,13 +402,15 @@ def fill(
     target_exif: ExifLens | None = None,
     source_exifs: Sequence[ExifLens | None] | None = None,
     source_masks: Sequence[np.ndarray | None] | None = None,
+    source_names: Sequence[str] | None = None,
     progress: Progress | None = None,
 ) -> FillResult:
     """Fill the hole ``mask`` (True/255 = hole) of ``target`` with content from ``sources``.
 
     What the hole shows is what the user removes: reference content that shows it again is not
     copied (``screen.removed_object``). ``source_masks`` (one per source, None for none; True/255 =
-    masked) mark what must never be copied from each reference.
+    masked) mark what must never be copied from each reference; ``source_names`` (their file names,
+    say) name them in the plain messages.
 
     ``sources`` is one image or a sequence of them (other photos of the scene), each with its own
     entry in ``source_exifs``. Images are HxWx3 uint8 RGB (other dtypes/channels are normalised);
@@ -360,18 +436,25 @@ def fill(
     masks = list(source_masks) if source_masks is not None else [None] * len(images)
     if len(masks) != len(images):
         raise ArrayFormatError(f"{len(masks)} source masks for {len(images)} sources")
+    started = prog.wall_s()
+    shared_step = len(images) > 1  # at most one "shared focal" stage
+    prog.plan(1 + len(images) * len(REFERENCE_STAGES) + shared_step + 2)
     with prog.stage("check inputs"):
-        ctx = prepare_fill(target, mask, images, cfg, target_exif, prog.say)
+        ctx = prepare_fill(target, mask, images, cfg, target_exif, prog.say, prog.detail)
     refs = []
     for i, (s, e, m) in enumerate(zip(images, exifs, masks, strict=True)):
         source = as_rgb_uint8(s)
         exclude = None if m is None else as_source_mask(m, source, f"mask of source {i + 1}")
-        refs.append(ReferenceArtifacts(i + 1, source, e, exclude))
+        name = source_names[i] if source_names is not None else ""
+        refs.append(ReferenceArtifacts(i + 1, source, e, exclude, name=name))
     if shares_camera(ctx, refs):
         refs = _run_references(ctx, refs, prog, until="match")
         with prog.stage("shared focal") as notes:
             refs = shared_focal(refs, cfg)
             notes.append(next((r.focal.summary() for r in refs if r.focal is not None), "no usable pair"))
+        prog.advance(sum(r.focal is not None for r in refs))  # their focal stage will not run
+    else:
+        prog.advance(shared_step)
     refs = _run_references(ctx, refs, prog)
     with prog.stage("fuse") as notes:
         fusion = fuse_references(ctx.target, ctx.hole, [r for r in refs if r.usable], cfg)
@@ -380,8 +463,9 @@ def fill(
         image = composite(ctx, fusion)
         notes.append(f"single-image inpainting: {ctx.inpainter.description}")
     report = _report(ctx, refs, fusion, prog)
+    report.wall_s = prog.wall_s() - started
     if report.status == "single_image":
-        prog.say("no reference could help: the hole was painted by single-image inpainting")
+        prog.say("no reference photo could be used: the whole hole was painted from its surroundings")
     return FillResult(image, report, refs, fusion, fusion.source_map(ctx.hole))
 
 
@@ -392,6 +476,7 @@ def fill_loaded(
     config: FillConfig | None = None,
     *,
     source_masks: Sequence[np.ndarray | None] | None = None,
+    source_names: Sequence[str] | None = None,
     progress: Progress | None = None,
 ) -> FillResult:
     """:func:`fill` on images read with :func:`geofill.io.read_image`, each with its EXIF lens: the
@@ -404,6 +489,7 @@ def fill_loaded(
         target_exif=target.exif,
         source_exifs=[s.exif for s in sources],
         source_masks=source_masks,
+        source_names=source_names,
         progress=progress,
     )
 
@@ -467,7 +553,11 @@ def composite(ctx: FillContext, fusion: Fusion) -> np.ndarray:
 def _refused_fractions(hole: np.ndarray, used: list[ReferenceArtifacts]) -> dict[str, float]:
     """Of the hole, where any reference's render was refused, per reason."""
     out = {}
-    for key, name in (("removed_object", "refused_object"), ("masked", "refused_masked")):
+    for key, name in (
+        ("removed_object", "refused_object"),
+        ("masked", "refused_masked"),
+        ("stranger", "refused_stranger"),
+    ):
         masks = [getattr(r.screened, name) for r in used if getattr(r.screened, name) is not None]
         if masks:
             out[key] = float(np.count_nonzero(np.logical_or.reduce(masks) & hole)) / max(int(hole.sum()), 1)

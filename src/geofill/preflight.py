@@ -18,12 +18,12 @@ from .io import read_depth_file
 
 
 def check_resources(cfg: FillConfig, source_size: tuple[int, int]) -> None:
-    """Raise the error the fill would meet later for a depth file, a learned depth model or a LaMa
-    model that the configuration asks for and that cannot be used. ``source_size`` is the
+    """Raise the error the fill would meet later for a depth file, a learned depth model, a LaMa
+    model or a learned matcher that the configuration asks for and that cannot be used. ``source_size`` is the
     (width, height) of the source image a depth file must match.
 
     Raises ConfigError (``file`` backend without a path), MissingExtraError, DepthFileError,
-    DepthModelError, InpaintModelError."""
+    DepthModelError, InpaintModelError, MatcherModelError."""
     depth = cfg.depth
     if depth.backend == "file":
         if not depth.file_path:
@@ -42,3 +42,7 @@ def check_resources(cfg: FillConfig, source_size: tuple[int, int]) -> None:
     elif depth.backend == "auto":
         choose_backend(depth)  # raises for an explicit model path that cannot be used
     get_inpainter(cfg.inpaint)  # raises for LaMa asked for and not usable; loads it once for the fill
+    if cfg.matching.learned == "on" or cfg.matching.learned_model:
+        from .match.learned import learned_matcher
+
+        learned_matcher(cfg.matching)  # raises for a required learned matcher that cannot be used

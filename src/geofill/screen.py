@@ -15,8 +15,13 @@ A static object shows in every reference at its 3D place, and rendering a refere
   that reach into the hole beyond a patch's width from its border (the border shows background that
   the render rightly reproduces).
 
+Strangers (a passer-by, a car that moved) show in a reference and not in the target. Where one
+reaches beyond the hole, the render disagrees with the target around the hole; the render content
+that continues it into the hole is refused, grown from there by OpenCV's watershed against the
+render pixels that agree with the target. This test runs on every fill, hole blanked or not.
+
 Reference pixels the user masked (``source_masks``) are never rendered. A hole that shows nothing
-(blank or constant) refuses nothing, and the stage then returns the refined render unchanged.
+(blank or constant) refuses no object.
 """
 
 from __future__ import annotations
@@ -44,13 +49,15 @@ from .utils.rotations import skew
 class ScreenedRender:
     """The refined render with what may not be copied taken out: ``image`` HxWx3 uint8 (zero where
     ``alpha`` is False) and ``alpha`` at target resolution (the refined render's own arrays where
-    nothing was refused); ``refused_object`` / ``refused_masked`` (HxW bool or None): hole pixels the
-    render covered but that show the removed object again / come from pixels the user masked."""
+    nothing was refused); ``refused_object`` / ``refused_masked`` / ``refused_stranger`` (HxW bool or
+    None): hole pixels the render covered but that show the removed object again / come from pixels
+    the user masked / continue reference content the target does not show around the hole."""
 
     image: np.ndarray
     alpha: np.ndarray
     refused_object: np.ndarray | None = None
     refused_masked: np.ndarray | None = None
+    refused_stranger: np.ndarray | None = None
     object_matches: int = 0  # epipolar-consistent SIFT matches of the hole's content in this reference
     located: bool = False  # the removed object was located in the reference by those matches
     hole_pixels: int = 0
@@ -60,20 +67,28 @@ class ScreenedRender:
         return 0.0 if refused is None else float(np.count_nonzero(refused)) / max(self.hole_pixels, 1)
 
     def summary(self) -> str:
-        if self.refused_object is None and self.refused_masked is None:
-            return "nothing to refuse"
-        parts = [
-            f"refused {100 * self.fraction(self.refused_object):.1f}% of the hole showing the removed object"
-        ]
+        parts = []
+        if self.refused_object is not None:
+            how = (
+                f"located by {self.object_matches} matches"
+                if self.located
+                else "not located in the reference"
+            )
+            share = 100 * self.fraction(self.refused_object)
+            parts.append(f"refused {share:.1f}% of the hole showing the removed object ({how})")
         if self.refused_masked is not None:
             parts.append(f"{100 * self.fraction(self.refused_masked):.1f}% masked in the reference")
-        how = f"located by {self.object_matches} matches" if self.located else "not located in the reference"
-        return f"{', '.join(parts)} ({how})"
+        if self.refused_stranger is not None:
+            parts.append(
+                f"{100 * self.fraction(self.refused_stranger):.1f}% not in the target around the hole"
+            )
+        return ", ".join(parts) or "nothing to refuse"
 
     def report(self) -> dict[str, Any]:
         return {
             "refused_object_fraction": self.fraction(self.refused_object),
             "refused_masked_fraction": self.fraction(self.refused_masked),
+            "refused_stranger_fraction": self.fraction(self.refused_stranger),
             "object_matches": self.object_matches,
             "object_located": self.located,
         }
@@ -94,6 +109,7 @@ def shows_object(target: np.ndarray, hole: np.ndarray, min_texture: float) -> bo
 
 def screen_render(
     refined: RefinedRender,
+    target: np.ndarray,
     hole: np.ndarray,
     source: np.ndarray,
     shown: np.ndarray | None,
@@ -104,23 +120,22 @@ def screen_render(
     pose: PoseEstimate,
     cfg: FillConfig,
 ) -> ScreenedRender:
-    """Take out of ``refined`` what shows the removed object again and what comes from reference
-    pixels the user masked. ``shown``: the target as the user gave it (HxWx3 uint8) when its hole
-    shows something to remove, else None; ``exclude``: the reference's own mask (HxW bool at the
-    source's input size, True = never copy) or None; ``source``: the reference at input size."""
+    """Take out of ``refined`` what shows the removed object again, what comes from reference pixels
+    the user masked and what continues a stranger. ``target``: the target with its hole blanked
+    (HxWx3 uint8); ``shown``: the target as the user gave it when its hole shows something to
+    remove, else None; ``exclude``: the reference's own mask (HxW bool at the source's input size,
+    True = never copy) or None; ``source``: the reference at input size."""
+    sc = cfg.screen
     n_hole = int(np.count_nonzero(hole))
-    if shown is None and exclude is None:
-        return ScreenedRender(refined.image, refined.alpha, hole_pixels=n_hole)
     rows, cols = refined.render.window()
     field = refined.render
     covered = refined.alpha[rows, cols] & hole[rows, cols]
-    refused_masked = refused_object = None
+    refused_masked = refused_object = refused_stranger = None
     if exclude is not None:
         refused_masked = np.zeros(hole.shape, bool)
         refused_masked[rows, cols] = _sampled(exclude, field, rows, cols) & covered
     object_matches, located = 0, False
     if shown is not None:
-        sc = cfg.screen
         in_source, object_matches = locate_object(shown, source, views, matches, focal, pose, cfg)
         located = in_source is not None
         refused_object = np.zeros(hole.shape, bool)
@@ -135,14 +150,122 @@ def screen_render(
     for r in (refused_masked, refused_object):
         if r is not None:
             refused |= r
+    if sc.stranger_threshold > 0:
+        refused_stranger = np.zeros(hole.shape, bool)
+        # The source's own colours at the field: the refine stage's local colour gain is fitted on the
+        # ring, so it would fade a stranger exactly where this test looks for it.
+        refused_stranger[rows, cols] = strangers(
+            field.sample_window(source),
+            target[rows, cols],
+            hole[rows, cols],
+            refined.alpha[rows, cols] & ~refused[rows, cols],
+            hole.shape,
+            sc,
+        )
+        refused |= refused_stranger
     if not refused.any():
         return ScreenedRender(
-            refined.image, refined.alpha, refused_object, refused_masked, object_matches, located, n_hole
-        )
+            refined.image, refined.alpha, refused_object, refused_masked, refused_stranger,
+            object_matches, located, n_hole,
+        )  # fmt: skip
     alpha = refined.alpha & ~refused
     image = refined.image.copy()
     image[refused] = 0
-    return ScreenedRender(image, alpha, refused_object, refused_masked, object_matches, located, n_hole)
+    return ScreenedRender(
+        image, alpha, refused_object, refused_masked, refused_stranger, object_matches, located, n_hole
+    )
+
+
+#: Long side (px) at which the stranger test runs: it finds regions tens of pixels wide, and at full
+#: resolution its watershed and statistics cost a tenth of a 1280-px fill.
+STRANGER_TEST_SIDE = 640
+
+
+def strangers(
+    render: np.ndarray,
+    target: np.ndarray,
+    hole: np.ndarray,
+    alpha: np.ndarray,
+    shape: tuple[int, ...],
+    sc: ScreenConfig,
+) -> np.ndarray:
+    """Hole pixels of a window (covered by ``alpha``) whose render continues content that the target
+    does not show around the hole: regions of the render within ``sc.stranger_ring_px`` of the hole
+    that disagree with ``target`` (after the median colour difference there is taken out; over
+    ``sc.stranger_threshold``, also with the render shifted by up to 12 px; wide and large enough,
+    near the hole) are grown into it by the watershed, against the pixels that agree with the target
+    (under ``sc.stranger_agreement``). ``shape``: the full target's, for pixel scaling. Runs with
+    the window's long side at most :data:`STRANGER_TEST_SIDE`.
+
+    >>> hole = np.zeros((40, 60), bool); hole[10:30, 20:40] = True
+    >>> target = np.full((40, 60, 3), 120, np.uint8); target[hole] = 0
+    >>> render = np.full((40, 60, 3), 120, np.uint8); render[:, 34:] = 240  # a stranger
+    >>> out = strangers(render, target, hole, np.ones((40, 60), bool), (720, 1280), ScreenConfig())
+    >>> bool(out[:, 35:].sum() == hole[:, 35:].sum()), bool(out[:, :34].any())  # (the seam: unlabelled)
+    (True, False)
+    """
+    h, w = hole.shape
+    f = min(1.0, STRANGER_TEST_SIDE / max(h, w))
+    px = config_px(1.0, shape) * f
+    if f == 1.0:
+        return _strangers(render, target, hole, alpha, px, sc)
+    size = (max(round(w * f), 1), max(round(h * f), 1))
+
+    def small(mask: np.ndarray) -> np.ndarray:
+        return cv2.resize(mask.astype(np.uint8), size, interpolation=cv2.INTER_NEAREST) > 0
+
+    found = _strangers(
+        cv2.resize(render, size, interpolation=cv2.INTER_AREA),
+        cv2.resize(target, size, interpolation=cv2.INTER_AREA),
+        small(hole),
+        small(alpha),
+        px,
+        sc,
+    )
+    return (cv2.resize(found.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) > 0) & alpha & hole
+
+
+def _strangers(
+    render: np.ndarray, target: np.ndarray, hole: np.ndarray, alpha: np.ndarray, px: float, sc: ScreenConfig
+) -> np.ndarray:
+    """:func:`strangers` at the resolution given, ``px`` pixels per config pixel."""
+    outside = cv2.distanceTransform((~hole).astype(np.uint8), cv2.DIST_L2, 3)
+    ring = alpha & ~hole & (outside <= sc.stranger_ring_px * px)
+    if not ring.any():
+        return np.zeros(hole.shape, bool)
+    k = _odd(5.0 * px)
+    # The exposure and white balance of the two photos: the median difference around the hole.
+    level = target.astype(np.float32) + np.median(render[ring].astype(np.float32) - target[ring], axis=0)
+    raw = np.abs(render - level).mean(axis=2)
+    diff = cv2.blur(raw, (k, k))
+    # Both the box mean and the pixel itself: the mean alone spreads a stranger's edge outwards. A
+    # render that is only misaligned (depth off at an occlusion edge) agrees once shifted a little;
+    # a stranger does not.
+    reach = 12.0 * px
+    seeds = ring & (diff > sc.stranger_threshold) & (raw > sc.stranger_threshold)
+    seeds &= _shifted_min_diff(render, level, k, reach) > sc.stranger_threshold
+    # An opening removes the thin lines that misalignment leaves along edges.
+    m = max(3, _odd(sc.stranger_min_px / 2 * px))
+    seeds = cv2.morphologyEx(seeds.astype(np.uint8), cv2.MORPH_OPEN, np.ones((m, m), np.uint8))
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(seeds, connectivity=8)
+    # Within the shift's reach of the hole: the band a shift explains lies between.
+    near = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (_odd(2 * reach + 3),) * 2)
+    touching = cv2.dilate(hole.astype(np.uint8), near) > 0
+    big = stats[:, cv2.CC_STAT_AREA] >= (sc.stranger_min_px * px) ** 2
+    keep = np.zeros(n, bool)
+    keep[np.unique(labels[touching & (labels > 0)])] = True
+    keep &= big
+    keep[0] = False
+    seeded = keep[labels]
+    agree = ring & (diff < sc.stranger_agreement)
+    if not seeded.any() or not agree.any():
+        return np.zeros(hole.shape, bool)
+    # Watershed (not a colour threshold): the stranger's own edges stop its growth, whatever its colours.
+    markers = np.where(alpha, 0, 3).astype(np.int32)
+    markers[agree] = 2
+    markers[seeded] = 1
+    cv2.watershed(np.ascontiguousarray(render), markers)
+    return (markers == 1) & alpha & hole
 
 
 def _sampled(mask: np.ndarray, field: RenderResult, rows: slice, cols: slice) -> np.ndarray:
@@ -233,6 +356,28 @@ def seen_again(
     deep[np.unique(labels[candidate & inner])] = True
     deep[0] = False
     return deep[labels]
+
+
+def _shifted_min_diff(render: np.ndarray, target: np.ndarray, k: int, reach_px: float) -> np.ndarray:
+    """Per pixel, the smallest box mean (side ``k``) of the absolute difference between ``target``
+    (float32) and ``render`` shifted by up to ``reach_px`` in each direction (7 x 7 shifts at most).
+    Computed with the long side at most 256 px: telling misalignment from other content needs no
+    fine detail, and 49 passes at 640 px would cost more than the rest of the screen stage."""
+    h, w = render.shape[:2]
+    f = min(1.0, 256 / max(h, w))
+    size = (max(round(w * f), 1), max(round(h * f), 1))
+    r_img = cv2.resize(render, size, interpolation=cv2.INTER_AREA).astype(np.float32)
+    t_img = cv2.resize(target, size, interpolation=cv2.INTER_AREA)
+    ks = _odd(k * f)
+    r = max(1, round(reach_px * f))
+    step = max(1, round(r / 3))
+    padded = cv2.copyMakeBorder(r_img, r, r, r, r, cv2.BORDER_REPLICATE)
+    best = np.full(r_img.shape[:2], np.inf, np.float32)
+    for dy in range(-r, r + 1, step):
+        for dx in range(-r, r + 1, step):
+            shifted = padded[r + dy : r + dy + size[1], r + dx : r + dx + size[0]]
+            np.minimum(best, cv2.blur(np.abs(shifted - t_img).mean(axis=2), (ks, ks)), out=best)
+    return cv2.resize(best, (w, h), interpolation=cv2.INTER_LINEAR)
 
 
 def _odd(px: float) -> int:

@@ -6,6 +6,7 @@ from __future__ import annotations
 import time
 from collections import Counter
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any, TextIO
 
 from .worker import STATUS_FAILED, STATUS_REFERENCE, STATUS_SINGLE_IMAGE
@@ -40,14 +41,20 @@ class BatchDisplay:
             self.bar.update(1)
             return
         n = sum(self.counts.values())
-        elapsed = time.perf_counter() - self.t0
-        eta = elapsed / n * (self.total - n)
         print(
-            f"geofill: [{n}/{self.total}] {record['item']}: {describe(record)} | "
-            f"{60.0 * n / elapsed:.1f} fills/min, ETA {_duration(eta)}",
+            f"geofill: [{n}/{self.total}] {record['item']}: {describe(record)}{self._pace(n)}",
             file=self.stream,
             flush=True,
         )
+
+    def _pace(self, n: int) -> str:
+        """`` | <rate>, ETA <time>`` from the items that were filled (an item that failed before any
+        work, a missing mask say, takes no time and says nothing about the others); "" before one was."""
+        filled = self.counts[STATUS_REFERENCE] + self.counts[STATUS_SINGLE_IMAGE]
+        if not filled:
+            return ""
+        per_fill = (time.perf_counter() - self.t0) / filled
+        return f" | {60.0 / per_fill:.1f} fills/min, ETA {_duration(per_fill * (self.total - n))}"
 
     def close(self) -> None:
         if self.bar is not None:
@@ -55,12 +62,17 @@ class BatchDisplay:
 
 
 def describe(record: dict[str, Any]) -> str:
-    """One line on how an item ended."""
+    """One line on how an item ended, in plain words."""
     status = record["status"]
+    dropped = record.get("references_dropped") or []
+    unused = f"; {len(dropped)} reference(s) not used" if dropped else ""
     if status == STATUS_REFERENCE:
-        return f"filled from {len(record['references'])} reference(s), coverage {record['coverage']:.0%}"
+        used = len(record["references"]) - len(dropped)
+        return f"{record['coverage']:.0%} of the hole filled from {used} reference(s){unused}"
     if status == STATUS_SINGLE_IMAGE:
-        return f"fell back to single-image inpainting: {record['fallback_reason']}"
+        why = "; ".join(f"{Path(d['reference']).name}: {d['reason']}" for d in dropped)
+        why = why or record["fallback_reason"]
+        return f"no reference could be used, the hole was painted from its surroundings ({why})"
     return f"FAILED: {record['error']}"
 
 
@@ -73,12 +85,14 @@ def summary_table(
     jobs: str,
     results_path: str,
     interrupted: bool,
+    stopped_by: str = "Ctrl-C",
 ) -> str:
     """The end-of-batch summary: counts by status, throughput, and every item that did not fill
     from a reference with its reason. ``records`` are this run's; ``skipped`` were complete already."""
     counts = Counter(r["status"] for r in records)
     ran = len(records)
-    rate = 60.0 * ran / elapsed_s if elapsed_s > 0 else 0.0
+    filled = counts[STATUS_REFERENCE] + counts[STATUS_SINGLE_IMAGE]
+    rate = f"{60.0 * filled / elapsed_s:.1f} fills/min, " if filled and elapsed_s > 0 else ""
     rows = [
         ("filled from a reference", counts[STATUS_REFERENCE]),
         ("fell back to single-image", counts[STATUS_SINGLE_IMAGE]),
@@ -86,11 +100,11 @@ def summary_table(
         ("skipped (already complete)", skipped),
     ]
     if interrupted:
-        rows.append(("not run (interrupted)", total - ran - skipped))
+        rows.append((f"not run (stopped by {stopped_by})", total - ran - skipped))
     width = max(len(name) for name, _ in rows)
     lines = [
         f"geofill batch: {ran} of {total} item(s) run in {_duration(elapsed_s)} "
-        f"({rate:.1f} fills/min, {jobs})" + (" - INTERRUPTED" if interrupted else ""),
+        f"({rate}{jobs})" + (f" - STOPPED by {stopped_by}" if interrupted else ""),
         *(f"  {name:<{width}}  {n:>5d}" for name, n in rows),
     ]
     problems = [r for r in records if r["status"] != STATUS_REFERENCE]

@@ -4,7 +4,8 @@ the exit status.
 Workers write the outputs (atomically, :func:`geofill.io.write_image_atomic`); the parent alone
 writes results.jsonl, one line per item as it finishes, so the file is never half a line and an
 item retried by Ray is recorded once. ``--resume`` keeps the records of items whose output is
-complete and runs the others.
+complete and runs the others. Ctrl-C and SIGTERM stop a batch the same way: workers terminated,
+every item that finished recorded, the summary printed.
 """
 
 from __future__ import annotations
@@ -26,7 +27,16 @@ from typing import Any, TextIO
 from PIL import Image
 
 from ..config import FillConfig
-from ..errors import EXIT_FELL_BACK, EXIT_INTERRUPTED, EXIT_ITEMS_FAILED, ConfigError, OutputError
+from ..errors import (
+    EXIT_FELL_BACK,
+    EXIT_INTERRUPTED,
+    EXIT_ITEMS_FAILED,
+    EXIT_TERMINATED,
+    ConfigError,
+    OutputError,
+    Terminated,
+)
+from ..io import remove_partial_writes
 from .display import BatchDisplay, summary_table
 from .items import BatchItem
 from .worker import (
@@ -40,11 +50,15 @@ from .worker import (
 )
 
 RESULTS_NAME = "results.jsonl"
+#: Seconds a terminated worker has to unwind before it is killed.
+TERMINATE_GRACE_S = 0.5
 #: Times Ray runs a task again after its worker process died (Ray's own retry).
 RAY_MAX_RETRIES = 3
 
 Task = tuple[BatchItem, FillConfig]
 OnRecord = Callable[[dict[str, Any]], None]
+#: What stops a batch from outside: Ctrl-C, and SIGTERM (which the command line raises as Terminated).
+STOPPED = (KeyboardInterrupt, Terminated)
 
 
 @dataclass(frozen=True)
@@ -65,13 +79,17 @@ class BatchOutcome:
 
     records: list[dict[str, Any]]
     kept: list[dict[str, Any]] = field(default_factory=list)
-    interrupted: bool = False
+    interrupted: bool = False  # by Ctrl-C or SIGTERM
     exit_code: int = 0
     elapsed_s: float = 0.0  # running the items (after Ray connected; local workers start within it)
 
 
-def exit_status(statuses: Sequence[str], *, allow_fallback: bool, interrupted: bool) -> int:
+def exit_status(
+    statuses: Sequence[str], *, allow_fallback: bool, interrupted: bool, terminated: bool = False
+) -> int:
     """0 when every item was filled from a reference; failed items win over fallbacks."""
+    if terminated:
+        return EXIT_TERMINATED
     if interrupted:
         return EXIT_INTERRUPTED
     if STATUS_FAILED in statuses:
@@ -86,8 +104,8 @@ def run_batch(
 ) -> BatchOutcome:
     """Fill every item, write ``{out_dir}/results.jsonl`` and print progress and the summary.
 
-    A problem with one item is recorded and the batch goes on; Ctrl-C stops it with the finished
-    items kept (their outputs and records), nothing half-written, and the summary printed."""
+    A problem with one item is recorded and the batch goes on; Ctrl-C or SIGTERM stops it with the
+    finished items kept (their outputs and records), nothing half-written, and the summary printed."""
     stream = stream or sys.stderr
     if settings.jobs < 1:
         raise ConfigError(f"--jobs must be at least 1, got {settings.jobs}")
@@ -136,13 +154,14 @@ def _run(
                 configs[key] = base_config.updated(dict(item.overrides)) if item.overrides else base_config
             tasks.append((item, configs[key]))
         t0 = time.perf_counter()
-        interrupted = False
+        stopped: BaseException | None = None
         try:
             execute(tasks, str(out), on_record)
-        except KeyboardInterrupt:
-            interrupted = True
+        except STOPPED as exc:
+            stopped = exc
         finally:
             display.close()
+    interrupted, terminated = stopped is not None, isinstance(stopped, Terminated)
     elapsed = time.perf_counter() - t0
     where = f"Ray {settings.ray}" if settings.ray else f"{settings.jobs} job(s)"
     print(
@@ -154,11 +173,14 @@ def _run(
             jobs=where,
             results_path=str(results),
             interrupted=interrupted,
+            stopped_by="SIGTERM" if terminated else "Ctrl-C",
         ),
         flush=True,
     )
     statuses = [r["status"] for r in [*kept.values(), *records]]
-    code = exit_status(statuses, allow_fallback=settings.allow_fallback, interrupted=interrupted)
+    code = exit_status(
+        statuses, allow_fallback=settings.allow_fallback, interrupted=interrupted, terminated=terminated
+    )
     return BatchOutcome(records, list(kept.values()), interrupted, code, elapsed)
 
 
@@ -249,23 +271,33 @@ def _run_local(tasks: Sequence[Task], out_dir: str, on_record: OnRecord, *, jobs
                 if broken:
                     pool.shutdown(wait=True)
                     pool = ProcessPoolExecutor(jobs, mp_context=ctx, initializer=init_worker)
-        except KeyboardInterrupt:
+        except STOPPED:
             _terminate_workers(pool)
+            for future, (item, _) in running.items():
+                # Items that finished while the signal came: their outputs are written, record them.
+                if future.done() and not future.cancelled() and future.exception() is None:
+                    on_record(future.result())
+                elif item.output:  # a worker killed mid-write leaves its temporary file
+                    remove_partial_writes(Path(out_dir) / item.output)
             raise
         pool.shutdown(wait=True)
 
 
 def _terminate_workers(pool: ProcessPoolExecutor) -> None:
-    """Stop at once: queued items are cancelled, running ones terminated (their SIGTERM handler
-    unwinds, so the atomic writer removes its temporary file)."""
+    """Stop at once: queued items are cancelled, running ones terminated. Their SIGTERM handler
+    unwinds (the atomic writer removes its temporary file), but only once the compiled call it
+    lands in returns, which can take seconds: a worker still alive after :data:`TERMINATE_GRACE_S`
+    is killed, and the caller removes what its write left."""
     pool.shutdown(wait=False, cancel_futures=True)
     children = multiprocessing.active_children()
     for p in children:
         p.terminate()
+    deadline = time.monotonic() + TERMINATE_GRACE_S
     for p in children:
-        p.join(timeout=10)
+        p.join(timeout=max(0.0, deadline - time.monotonic()))
         if p.is_alive():
             p.kill()
+            p.join()
 
 
 def _failed(item: BatchItem, cfg: FillConfig, out_dir: str, reason: str) -> dict[str, Any]:
@@ -316,7 +348,7 @@ def _run_ray(ray: Any, tasks: Sequence[Task], out_dir: str, on_record: OnRecord)
                     item, cfg = refs[ref]
                     record = _failed(item, cfg, out_dir, f"Ray task failed: {str(exc).splitlines()[0]}")
                 on_record(record)
-    except KeyboardInterrupt:
+    except STOPPED:
         for ref in pending:
             ray.cancel(ref)
         raise

@@ -55,6 +55,8 @@ class Filled:
     notices: tuple[str, ...]
     reference_masks: tuple[str | None, ...] = ()  # per reference, its mask's path or None
     refused: dict[str, float] = field(default_factory=dict)  # FillReport.refused_fraction
+    #: The references the fill dropped: {"reference": path, "reason": plain words, "detail": technical}.
+    dropped: tuple[dict[str, str], ...] = ()
 
 
 def fill_from_references(
@@ -77,6 +79,11 @@ def fill_from_references(
     )
     r = result.report
     paths = tuple(ref.path for ref in references)
+    dropped = tuple(
+        {"reference": paths[a.index - 1], "reason": a.dropped_words, "detail": a.dropped}
+        for a in result.references
+        if a.dropped
+    )
     return Filled(
         result.image,
         r.status,
@@ -86,6 +93,7 @@ def fill_from_references(
         (),
         tuple(None if m is None else m[0] for m in used),
         {k: round(v, 4) for k, v in r.refused_fraction.items()},
+        dropped,
     )
 
 
@@ -105,7 +113,14 @@ def init_worker() -> None:
     single_threaded()
 
 
+#: Set when this worker process is being terminated: whatever the unwinding raises from then on (a
+#: compiled kernel turns the SystemExit into a SystemError) ends the process, it is no item's error.
+_terminating = False
+
+
 def _exit_on_terminate(signum: int, frame: Any) -> None:
+    global _terminating
+    _terminating = True
     raise SystemExit(128 + signum)
 
 
@@ -131,7 +146,8 @@ def run_item(item: BatchItem, cfg: FillConfig, out_dir: str) -> dict[str, Any]:
         "mask": item.mask,
         "output": str(Path(out_dir) / item.output) if item.output else "",
         "status": STATUS_FAILED,
-        "references": [],
+        "references": [],  # every reference the fill was given (references_dropped: those it could not use)
+        "references_dropped": [],
         "reference_masks": [],
         "fallback_reason": None,
         "coverage": None,
@@ -146,6 +162,8 @@ def run_item(item: BatchItem, cfg: FillConfig, out_dir: str) -> dict[str, Any]:
         except GeoFillError as exc:
             record["error"] = str(exc)
         except Exception as exc:  # a fill that raises must not stop the batch: record it
+            if _terminating:
+                raise SystemExit(128 + signal.SIGTERM) from exc
             where = traceback.extract_tb(exc.__traceback__)[-1]
             record["error"] = (
                 f"{item.where}: {type(exc).__name__}: {exc} (at {Path(where.filename).name}:{where.lineno})"
@@ -220,6 +238,7 @@ def _fill_item(item: BatchItem, cfg: FillConfig, record: dict[str, Any], prog: P
             filled.coverage,
         )
         record["references"] = list(filled.references)
+        record["references_dropped"] = list(filled.dropped)
         record["reference_masks"] = list(filled.reference_masks)
         record["refused_fraction"] = filled.refused
         notices.extend(filled.notices)

@@ -24,7 +24,7 @@ from .images import (
     read_image,
     read_mask,
 )
-from .output import check_output_dir, check_output_path, write_image_atomic
+from .output import check_output_dir, check_output_path, remove_partial_writes, write_image_atomic
 from .reference_masks import is_reference_mask, read_reference_mask, split_reference_masks
 
 __all__ = [
@@ -44,6 +44,7 @@ __all__ = [
     "read_image",
     "read_mask",
     "read_reference_mask",
+    "remove_partial_writes",
     "split_reference_masks",
     "validate_pair",
     "write_image_atomic",

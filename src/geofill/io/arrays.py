@@ -53,9 +53,8 @@ def validate_pair(
         raise ArrayFormatError(f"{mask_name}: expected an HxW bool or uint8 array, got {_describe(mask)}")
     hole = mask if mask.dtype == np.bool_ else mask >= MASK_THRESHOLD
     if hole.shape != target.shape[:2]:
-        raise MaskSizeError(
-            f"{mask_name}: mask is {wxh(hole.shape)} but the target {target_name} is {wxh(target.shape)}"
-        )
+        which = "the target" if target_name == "target" else f"the target {target_name}"
+        raise MaskSizeError(f"{mask_name}: mask is {wxh(hole.shape)} but {which} is {wxh(target.shape)}")
     covered = float(np.count_nonzero(hole)) / hole.size
     if covered == 0.0:
         raise EmptyMaskError(f"{mask_name}: mask marks no hole pixel (hole = value >= {MASK_THRESHOLD})")
@@ -115,12 +114,19 @@ def as_rgb_uint8(image: np.ndarray, *, name: str = "image") -> np.ndarray:
     return np.ascontiguousarray(a)
 
 
+def too_large(name: str, size: str, max_pixels: int) -> str:
+    """The message for an image of ``size`` (words) over ``max_pixels``.
+
+    >>> too_large("a.png", "9000x9000 = 81000000 pixels", 40_000_000)
+    'a.png: 9000x9000 = 81000000 pixels is over the limit of 40000000 pixels (max_pixels)'
+    """
+    return f"{name}: {size} is over the limit of {max_pixels} pixels (max_pixels)"
+
+
 def check_size(name: str, width: int, height: int, *, max_pixels: int, min_side: int) -> None:
     """Raise ImageTooLargeError / ImageTooSmallError for an image ``name`` of this size (px)."""
     if width * height > max_pixels:
-        raise ImageTooLargeError(
-            f"{name}: {width}x{height} = {width * height} pixels is over the limit of {max_pixels}"
-        )
+        raise ImageTooLargeError(too_large(name, f"{width}x{height} = {width * height} pixels", max_pixels))
     if min(width, height) < min_side:
         raise ImageTooSmallError(f"{name}: {width}x{height} has a side under the minimum of {min_side} px")
 

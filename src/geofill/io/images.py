@@ -15,8 +15,11 @@ from __future__ import annotations
 import contextlib
 import math
 import os
+import re
 import stat
+import struct
 import warnings
+import zlib
 from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -38,7 +41,7 @@ from PIL import (
 
 from ..errors import CorruptImageError, ImageTooLargeError, MissingFileError, UnreadableFileError
 from ..extras import require
-from .arrays import MASK_THRESHOLD, as_rgb_uint8, check_size, mask_channel
+from .arrays import MASK_THRESHOLD, as_rgb_uint8, check_size, mask_channel, too_large
 from .files import DECODE_ERRORS, one_line, stat_mode
 
 #: Pillow formats accepted as input. Restricting ``Image.open`` to these keeps Pillow's other
@@ -90,11 +93,13 @@ class ExifCamera:
 class ImageMetadata:
     """What an output carries over from its input file: the EXIF block (orientation reset to 1,
     since the pixels are delivered upright) and the ICC colour profile; None where absent.
-    ``note`` says why EXIF present in the file could not be carried (never dropped silently)."""
+    ``note`` says why EXIF present in the file could not be carried (never dropped silently);
+    ``unread`` what Pillow warned it could not read in the file (a corrupt EXIF block, say)."""
 
     exif: bytes | None = None
     icc_profile: bytes | None = None
     note: str | None = None
+    unread: str | None = None
 
 
 @dataclass
@@ -156,7 +161,7 @@ def _read_raster(
         fh = open(p, "rb")
     except OSError as exc:
         raise UnreadableFileError(f"{p}: cannot open file ({one_line(exc)})") from exc
-    with fh, _pillow_bomb_guard(p, max_pixels):
+    with fh, _pillow_guard(p, max_pixels) as heard:
         formats = INPUT_FORMATS
         if _is_heif(fh):
             require("pillow_heif", f"{p}: reading HEIC/HEIF").register_heif_opener()
@@ -182,6 +187,9 @@ def _read_raster(
                 f"{p}: cannot decode image, truncated or corrupt ({one_line(exc)})"
             ) from exc
         metadata = _carried_metadata(img, exif, orientation)
+    if heard:  # said once, as a note on the file, rather than as Python warnings
+        said = "; ".join(dict.fromkeys(one_line(w.message) for w in heard))
+        metadata = replace(metadata, unread=f"part of its metadata could not be read ({said})")
     return pixels, orientation, camera, metadata
 
 
@@ -255,7 +263,56 @@ def _decode(img: Image.Image, path: Path, fh: IO[bytes]) -> np.ndarray:
         return _read_tiff(path)
     if img.format in ("JPEG", "MPO") and img.mode in ("RGB", "L"):
         return _decode_jpeg_strict(path, grey=img.mode == "L")
+    if img.format == "PNG":
+        _check_png_rows(fh)
     return np.array(img.convert("RGBA" if img.has_transparency_data else "RGB"))  # writable
+
+
+#: Samples per pixel of each PNG colour type (grey, RGB, palette, grey+alpha, RGBA).
+_PNG_CHANNELS = {0: 1, 2: 3, 3: 1, 4: 2, 6: 4}
+#: Adam7 passes: (first column, first row, column step, row step).
+_ADAM7 = ((0, 0, 8, 8), (4, 0, 8, 8), (0, 4, 4, 8), (2, 0, 4, 4), (0, 2, 2, 4), (1, 0, 2, 2), (0, 1, 1, 2))
+
+
+def _check_png_rows(fh: IO[bytes]) -> None:
+    """Raise ValueError when a PNG's image data holds fewer rows than its header says.
+
+    Pillow decodes a complete zlib stream that ends early as an image whose last rows are black,
+    without a word; libpng would refuse it, but only OpenCV wraps libpng and it prints its error to
+    stderr. So the stream is inflated here, in bounded pieces, and its length compared with the one
+    the header implies (a filter byte and the packed samples per row, per Adam7 pass if interlaced)."""
+    fh.seek(8)
+    width, height, depth, colour, _, _, interlaced = struct.unpack(">IIBBBBB", fh.read(25)[8:21])
+    bits = depth * _PNG_CHANNELS.get(colour, 4)
+    passes = _ADAM7 if interlaced else ((0, 0, 1, 1),)
+    expected = 0
+    for x0, y0, dx, dy in passes:
+        cols, rows = -(-(width - x0) // dx), -(-(height - y0) // dy)
+        if cols > 0 and rows > 0:
+            expected += rows * (1 + -(-(cols * bits) // 8))
+    inflate, got = zlib.decompressobj(), 0
+    fh.seek(8)
+    while got < expected and not inflate.eof:
+        head = fh.read(8)
+        if len(head) < 8:
+            break
+        length, kind = struct.unpack(">I4s", head)
+        data = fh.read(length)
+        fh.seek(4, os.SEEK_CUR)  # CRC
+        if kind == b"IEND":
+            break
+        if kind != b"IDAT":
+            continue
+        while data and got < expected:
+            try:
+                got += len(inflate.decompress(data, 1 << 20))
+            except zlib.error as exc:  # Pillow decodes without checking, so this is news
+                raise ValueError(f"its image data is corrupt ({exc})") from exc
+            data = inflate.unconsumed_tail
+    if got < expected:
+        raise ValueError(
+            f"its image data stops at {100 * got / expected:.0f}% of its {width}x{height} pixels"
+        )
 
 
 def _decode_jpeg_strict(path: Path, grey: bool) -> np.ndarray:
@@ -310,22 +367,31 @@ def _existing_file(path: str | os.PathLike) -> Path:
 
 
 @contextlib.contextmanager
-def _pillow_bomb_guard(path: Path, max_pixels: int) -> Iterator[None]:
+def _pillow_guard(path: Path, max_pixels: int) -> Iterator[list[warnings.WarningMessage]]:
     """Map Pillow's own decompression-bomb guard, which fires inside ``Image.open`` before our
-    header check, to ImageTooLargeError.
+    header check, to ImageTooLargeError with our limit; collect Pillow's other warnings (a corrupt
+    EXIF block, say) in the yielded list instead of letting Python print them.
 
     Its warning (over ``Image.MAX_IMAGE_PIXELS``) is an error when that limit is at or above ours
     (then the image is over ours too) and ignored when the caller allows more than Pillow does; its
     hard error (over twice the limit) always stops the read. ``warnings.catch_warnings`` changes
     process-wide state, which is fine for the single-threaded reads here."""
     limit = Image.MAX_IMAGE_PIXELS
-    with warnings.catch_warnings():
+    with warnings.catch_warnings(record=True) as heard:
+        warnings.simplefilter("always")
         action = "error" if limit is None or max_pixels <= limit else "ignore"
         warnings.simplefilter(action, Image.DecompressionBombWarning)
         try:
-            yield
+            yield heard
         except (Image.DecompressionBombError, Image.DecompressionBombWarning) as exc:
-            raise ImageTooLargeError(f"{path}: image too large ({one_line(exc)})") from exc
+            # Pillow's words name its own limit; the size is the one number worth keeping.
+            found = re.search(r"\((\d+) pixels\)", str(exc))
+            size = f"{found[1]} pixels" if found else "the image"
+            if isinstance(exc, Image.DecompressionBombError) and limit is not None and max_pixels > 2 * limit:
+                message = f"{path}: {size} is over the most Pillow decodes ({2 * limit} pixels)"
+            else:
+                message = too_large(str(path), size, max_pixels)
+            raise ImageTooLargeError(message) from exc
 
 
 def _apply_orientation(image: np.ndarray, orientation: int) -> np.ndarray:

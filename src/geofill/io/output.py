@@ -6,6 +6,7 @@ from __future__ import annotations
 import os
 import stat
 import uuid
+from glob import escape as glob_escape
 from pathlib import Path
 
 import numpy as np
@@ -85,6 +86,14 @@ def _check_name_length(p: Path, name: str) -> None:
 def _temp_path(p: Path) -> Path:
     # A hidden name unique to this call; short affixes leave the longest possible output name.
     return p.with_name(f".{p.name}.{uuid.uuid4().hex[:12]}.tmp")
+
+
+def remove_partial_writes(path: str | os.PathLike) -> None:
+    """Delete the temporary files of writes of ``path`` that a killed process left behind (a write
+    that only raised removes its own)."""
+    p = Path(path)
+    for tmp in p.parent.glob(f".{glob_escape(p.name)}.*.tmp"):
+        tmp.unlink(missing_ok=True)
 
 
 def write_image_atomic(

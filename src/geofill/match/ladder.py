@@ -1,17 +1,24 @@
-"""The matching ladder: plain SIFT first; while the verified geometry is weak (too few inliers, or
-too little of the hole's surroundings near an inlier), climb to costlier matching, and stop at the
-first rung whose geometry verifies or when the time budget is spent.
+"""The matching ladder: plain SIFT first, then a learned matcher when one is installed; while the
+verified geometry is weak (too few inliers, or too little of the hole's surroundings
+near an inlier), climb to costlier matching, and stop at the first rung whose geometry verifies or
+when the time budget is spent. A reference that shows another scene (almost nothing verifies on
+the first two rungs) is given up at once instead of climbing.
 
 Rungs (``MatchingConfig.max_rung`` caps the climb):
 
 ``sift``: SIFT, RootSIFT descriptors, ratio test + mutual nearest neighbours, fundamental matrix
 by a robust estimator (OpenCV USAC MAGSAC++ by default). What every easy pair uses, unchanged.
 
+``learned`` (``matching.learned``: by default whenever the ``learned`` extra is installed):
+XFeat + LighterGlue (:mod:`geofill.match.xfeat`) or an ONNX matcher graph
+(:mod:`geofill.match.learned`), when SIFT's geometry is weak. With
+``matching.learned_cross_check`` it also runs after SIFT verified: repeated structure gives SIFT
+many verified but wrong matches (the fox's wallpaper: 86 verified, a 62-degree pose error); when
+both rungs verify, the geometry that more matches around the hole support is kept
+(:meth:`_Ladder.choose`), and the report says which and why.
+
 ``loose``: more SIFT keypoints and a looser ratio test (more true matches on wide baselines, and
 more outliers), verified more strictly: a tighter inlier threshold.
-
-``learned`` (only when ``matching.learned`` asks for it): an end-to-end keypoint + matcher ONNX
-graph (:mod:`geofill.match.learned`), verified as strictly as ``loose``.
 
 ``asift``: affine-simulated SIFT (ASIFT, OpenCV ``AffineFeature``): each image is re-detected under
 simulated camera tilts, which recovers the matches that a strong viewpoint change destroys for
@@ -48,7 +55,13 @@ ROBUST_METHODS = {"magsac": cv2.USAC_MAGSAC, "ransac": cv2.RANSAC, "lmeds": cv2.
 #: Fewer tentative matches than this cannot support a fundamental matrix fit (8-point + margin).
 MIN_MATCHES_FOR_F = 12
 #: The rungs in climbing order.
-RUNGS = ("sift", "loose", "learned", "asift", "guided")
+RUNGS = ("sift", "learned", "loose", "asift", "guided")
+#: Rungs after which a reference that verified almost nothing is given up (the costly ones follow).
+EARLY_RUNGS = ("sift", "learned")
+#: Another rung's geometry replaces SIFT's when at least this many times as many matches support it.
+SUPPORT_MARGIN = 1.2
+#: Focal lengths (multiples of the prior) at which the rungs' geometries are compared.
+FOCAL_SCALES = (0.6, 0.8, 1.0, 1.3, 1.7)
 
 
 @dataclass(frozen=True)
@@ -63,6 +76,7 @@ class RungReport:
     hole_support: float
     time_s: float
     weak: str
+    cpu_s: float = 0.0  # the process's CPU time during the rung (all threads)
 
     @property
     def verified(self) -> bool:
@@ -75,6 +89,7 @@ class RungReport:
             "verified": self.n_verified,
             "hole_support": round(self.hole_support, 4),
             "time_s": round(self.time_s, 3),
+            "cpu_s": round(self.cpu_s, 3),
             "weak": self.weak,
         }
 
@@ -101,6 +116,12 @@ class Matches:
     budget_spent: bool = False  # the time budget stopped the ladder
     time_s: float = 0.0
     notes: tuple[str, ...] = field(default=())  # why the ladder climbed or stopped
+    #: What produced the matches used: "SIFT", "ASIFT" or the learned matcher's description.
+    matcher: str = "SIFT"
+    #: Why these matches were preferred when two rungs verified ("" when only one did).
+    choice: str = ""
+    #: Why the reference shows another scene ("" unless the ladder gave it up early).
+    unrelated: str = ""
     #: The source's plain-SIFT keypoints (the first rung's), which the screen stage matches the
     #: hole's content against; None where that rung did not run.
     source_features: Features | None = None
@@ -122,6 +143,8 @@ class Matches:
             line += f"; rungs: {tried}"
         if self.budget_spent:
             line += "; time budget spent"
+        if self.choice:
+            line += f"; {self.choice}"
         return line
 
     def report(self) -> dict[str, Any]:
@@ -130,6 +153,7 @@ class Matches:
             "n_keypoints_target": self.n_keypoints_target,
             "n_keypoints_source": self.n_keypoints_source,
             "rung": self.rung,
+            "matcher": self.matcher,
             "verified": self.verified,
             "n_verified": len(self),
             "n_tentative": self.n_tentative,
@@ -137,6 +161,8 @@ class Matches:
             "time_s": round(self.time_s, 3),
             "rungs": [r.to_json() for r in self.rungs],
             "notes": list(self.notes),
+            "choice": self.choice,
+            "unrelated": self.unrelated,
         }
 
 
@@ -187,20 +213,24 @@ class _Candidate:
     pts_s: np.ndarray
     F: np.ndarray | None
     n_kp: tuple[int, int]
+    tentative: tuple[np.ndarray, np.ndarray]  # (target, source) matches before verification
+    threshold: float  # the inlier threshold (px) the rung verified with
 
 
 class _Ladder:
     """State shared by the rungs of one :func:`match_pair` call: the images, the features already
     computed (later rungs reuse them), the best geometry so far and the deadline."""
 
-    def __init__(self, target, source, hole, cfg: MatchingConfig, scale_px: float, start: float):
-        self.cfg, self.hole, self.scale = cfg, hole, scale_px
+    def __init__(self, target, source, hole, cfg: MatchingConfig, scale_px: float, start: float, K=None):
+        self.cfg, self.hole, self.scale, self.K = cfg, hole, scale_px, K
         self.gray = (to_gray_u8(target), to_gray_u8(source))
         self.masks = (keypoint_mask(hole, cfg.hole_margin_px * scale_px), None)
         self.threshold = cfg.ransac_px(scale_px)
         self.deadline = start + cfg.time_budget_s
         self.features: dict[str, tuple[Features, Features]] = {}
         self.best: _Candidate | None = None
+        self.candidates: list[_Candidate] = []
+        self.learned_name = ""
 
     def sift(self, n: int, max_side: int = 0) -> tuple[Features, Features]:
         key = f"sift{n}@{max_side}"
@@ -216,7 +246,8 @@ class _Ladder:
         matcher, why = learned_matcher(self.cfg)
         if matcher is None:
             return why
-        mt, ms, _ = matcher(*self.gray)
+        self.learned_name = why
+        mt, ms, _ = matcher(*self.gray, self.masks[0])
         inside = ~self.hole[
             np.clip(np.rint(mt[:, 1]).astype(int), 0, self.hole.shape[0] - 1),
             np.clip(np.rint(mt[:, 0]).astype(int), 0, self.hole.shape[1] - 1),
@@ -228,7 +259,7 @@ class _Ladder:
     def run(self, rung: str) -> _Candidate | str:
         """The rung's verified matches, or why it has nothing to work on (guided matching without a
         first geometry, a learned matcher that is off or does not resolve)."""
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         cfg, strict = self.cfg, self.threshold * self.cfg.strict_threshold_scale
         if rung == "sift":
             ft, fs = self.sift(cfg.max_features, cfg.sift_max_side)
@@ -237,7 +268,9 @@ class _Ladder:
             got = self.learned()
             if isinstance(got, str):
                 return got
-            (ft, fs, pairs), thr = got, strict
+            # Keypoints located at learned_max_side: their error grows with the working/learned ratio.
+            ft, fs, pairs = got
+            thr = self.threshold * max(1.0, max(self.gray[0].shape) / cfg.learned_max_side)
         elif rung == "loose":
             ft, fs = self.sift(cfg.loose_max_features)
             pairs, thr = mutual_ratio_matches(ft.desc, fs.desc, cfg.loose_ratio, False), strict
@@ -262,6 +295,7 @@ class _Ladder:
         first.sort()
         mt, ms = mt[first], ms[first]
         F, keep = verify_fundamental(mt, ms, thr, cfg)
+        tentative = (mt, ms)
         mt, ms = mt[keep], ms[keep]
         support = hole_support(self.hole, mt, cfg.hole_support_radius_px * self.scale)
         weak = []
@@ -271,11 +305,130 @@ class _Ladder:
             weak.append(
                 f"{100 * support:.0f}% of the hole near a verified match < {100 * cfg.min_hole_support:.0f}%"
             )
-        report = RungReport(rung, len(first), len(mt), support, time.perf_counter() - t0, "; ".join(weak))
-        cand = _Candidate(report, mt, ms, F, (len(ft), len(fs)))
+        report = RungReport(
+            rung,
+            len(first),
+            len(mt),
+            support,
+            time.perf_counter() - t0,
+            "; ".join(weak),
+            time.process_time() - c0,
+        )
+        cand = _Candidate(report, mt, ms, F, (len(ft), len(fs)), tentative, thr)
+        self.candidates.append(cand)
         if self.best is None or _score(cand) > _score(self.best):
             self.best = cand
         return cand
+
+    def choose(self) -> str:
+        """Between rungs that both verified (SIFT and its learned cross-check), keep the geometry
+        that more matches around the hole support, SIFT's unless another rung's is supported by
+        ``SUPPORT_MARGIN`` times as many. Sets ``best`` and returns why ("" when fewer than two
+        rungs verified).
+
+        The support of a rung's geometry is the number of all rungs' tentative matches within
+        ``hole_support_radius_px`` of the hole that fit the essential matrix estimated from its
+        verified matches with the prior intrinsics. Not F: repeated structure on a plane (the fox's
+        wallpaper) gives SIFT matches shifted by whole periods, and those fit an F of the plane's
+        family (the epipole at infinity along the period) as well as the right matches on the
+        plane do, so F-support cannot tell the geometries apart; a calibrated E cannot take that
+        form. Without intrinsics, F-support at the rungs' threshold is used."""
+        verified = [c for c in self.candidates if c.report.verified and c.F is not None]
+        if len(verified) < 2:
+            return ""
+        pool_t = np.concatenate([c.tentative[0] for c in self.candidates])
+        pool_s = np.concatenate([c.tentative[1] for c in self.candidates])
+        near = near_hole(self.hole, pool_t, self.cfg.hole_support_radius_px * self.scale)
+        pool_t, pool_s = pool_t[near], pool_s[near]
+        thr = max(c.threshold for c in verified)
+        if self.K is not None:
+            # The prior focal length can be far off (no EXIF): each geometry is scored at its best
+            # of a few focal lengths around it.
+            support = [
+                max(
+                    essential_support(*c.tentative, pool_t, pool_s, _focal_scaled(self.K, f), thr)
+                    for f in FOCAL_SCALES
+                )
+                for c in verified
+            ]
+            kind = "essential matrix, focal prior x " + "/".join(f"{f:g}" for f in FOCAL_SCALES)
+        else:
+            support = [int((sampson_px(c.F, pool_t, pool_s) < thr).sum()) for c in verified]
+            kind = "fundamental matrix"
+        k = int(np.argmax(support))
+        if support[k] < SUPPORT_MARGIN * support[0]:
+            k = 0
+        self.best = verified[k]
+        tally = ", ".join(f"{c.report.rung} {n}" for c, n in zip(verified, support, strict=True))
+        return (
+            f"{self.best.report.rung} kept: of {len(pool_t)} matches around the hole, {tally} fit each "
+            f"rung's geometry ({kind}, {thr:.2f} px)"
+        )
+
+
+def _focal_scaled(K: tuple[np.ndarray, np.ndarray], f: float) -> tuple[np.ndarray, np.ndarray]:
+    """``K`` (target, source) with both focal lengths times ``f``."""
+    scaled = [np.array(k, np.float64) for k in K]
+    for k in scaled:
+        k[0, 0] *= f
+        k[1, 1] *= f
+    return scaled[0], scaled[1]
+
+
+def essential_support(
+    pts_t: np.ndarray,
+    pts_s: np.ndarray,
+    pool_t: np.ndarray,
+    pool_s: np.ndarray,
+    K: tuple[np.ndarray, np.ndarray],
+    threshold_px: float,
+) -> int:
+    """How many ``pool`` matches fit (Sampson distance in target pixels < ``threshold_px``) the
+    essential matrix estimated (MAGSAC++) from the matches ``pts_t``/``pts_s`` with the target
+    and source intrinsics ``K``; 0 when none can be estimated."""
+    K_t, K_s = K
+    f = float(K_t[0, 0])
+
+    def normalised(pts: np.ndarray, K: np.ndarray) -> np.ndarray:
+        return cv2.undistortPoints(np.asarray(pts, np.float64)[:, None], K, None)[:, 0]
+
+    try:
+        E, _ = cv2.findEssentialMat(
+            normalised(pts_s, K_s),
+            normalised(pts_t, K_t),
+            np.eye(3),
+            cv2.USAC_MAGSAC,
+            0.999,
+            threshold_px / f,
+        )
+    except cv2.error:
+        return 0
+    if E is None or len(pool_t) == 0:
+        return 0
+    best = 0
+    for k in range(0, E.shape[0], 3):  # the five-point solver can return several
+        d = sampson_px(E[k : k + 3], normalised(pool_t, K_t), normalised(pool_s, K_s)) * f
+        best = max(best, int((d < threshold_px).sum()))
+    return best
+
+
+def near_hole(hole: np.ndarray, pts: np.ndarray, radius_px: float) -> np.ndarray:
+    """bool per point (x, y): within ``radius_px`` of the hole (outside it)."""
+    if not hole.any() or len(pts) == 0:
+        return np.ones(len(pts), bool)
+    dist = cv2.distanceTransform(np.where(hole, 0, 255).astype(np.uint8), cv2.DIST_L2, 3)
+    xy = np.clip(np.rint(pts).astype(np.int64), 0, [hole.shape[1] - 1, hole.shape[0] - 1])
+    return dist[xy[:, 1], xy[:, 0]] <= radius_px
+
+
+def sampson_px(F: np.ndarray, pts_t: np.ndarray, pts_s: np.ndarray) -> np.ndarray:
+    """Sampson distance (px) of each match to ``x_t^T F x_s = 0``."""
+    xs = np.c_[pts_s, np.ones(len(pts_s))]
+    xt = np.c_[pts_t, np.ones(len(pts_t))]
+    Fxs, Ftxt = xs @ F.T, xt @ F
+    num = np.einsum("ij,ij->i", xt, Fxs)
+    den = Fxs[:, 0] ** 2 + Fxs[:, 1] ** 2 + Ftxt[:, 0] ** 2 + Ftxt[:, 1] ** 2
+    return np.abs(num) / np.sqrt(np.maximum(den, 1e-30))
 
 
 def _score(c: _Candidate) -> tuple[bool, bool, int]:
@@ -284,15 +437,22 @@ def _score(c: _Candidate) -> tuple[bool, bool, int]:
 
 
 def match_pair(
-    target: np.ndarray, source: np.ndarray, hole: np.ndarray, cfg: MatchingConfig, scale_px: float = 1.0
+    target: np.ndarray,
+    source: np.ndarray,
+    hole: np.ndarray,
+    cfg: MatchingConfig,
+    scale_px: float = 1.0,
+    K: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> Matches:
     """Match ``target`` (with boolean ``hole``) against ``source``; both RGB at working resolution.
 
     ``scale_px`` converts the config's pixel distances (given at a 1280-px long side) to this image.
+    ``K``: the prior (target, source) intrinsics at working resolution, with which two verified
+    rungs' geometries are compared (:meth:`_Ladder.choose`).
     Never raises on valid images: a pair without a verifiable geometry gives :attr:`Matches.too_few`.
     """
     start = time.perf_counter()
-    ladder = _Ladder(target, source, hole, cfg, scale_px, start)
+    ladder = _Ladder(target, source, hole, cfg, scale_px, start, K)
     reports: list[RungReport] = []
     notes: list[str] = []
     budget_spent = False
@@ -300,9 +460,22 @@ def match_pair(
         from .learned import learned_matcher
 
         learned_matcher(cfg)  # a required matcher that cannot be used is an error before any work
+    unrelated = ""
     for rung in RUNGS[: RUNGS.index(cfg.max_rung) + 1]:
         if rung == "learned" and cfg.learned == "off" and not cfg.learned_model:
             continue
+        # A verified geometry ends the climb; only the learned cross-check, when asked for, still runs.
+        if any(r.verified for r in reports) and not (rung == "learned" and cfg.learned_cross_check):
+            break
+        most = max((r.n_verified for r in reports), default=0)
+        if rung not in EARLY_RUNGS and reports and most < cfg.unrelated_max_verified:
+            tried = " and ".join(r.rung for r in reports)
+            unrelated = (
+                f"does not show the same scene as the target: {most} matching points ({tried}), "
+                f"{cfg.unrelated_max_verified} needed"
+            )
+            notes.append(f"given up before rung {rung}: {unrelated}")
+            break
         if reports and time.perf_counter() >= ladder.deadline:
             budget_spent = True
             notes.append(f"time budget {cfg.time_budget_s:g} s spent before rung {rung}")
@@ -312,9 +485,9 @@ def match_pair(
             notes.append(f"rung {rung} skipped: {cand}")
             continue
         reports.append(cand.report)
-        if cand.report.verified:
-            break
-        notes.append(f"rung {rung} weak: {cand.report.weak}")
+        if not cand.report.verified:
+            notes.append(f"rung {rung} weak: {cand.report.weak}")
+    choice = ladder.choose()
     best = ladder.best
     elapsed = time.perf_counter() - start
     budget_spent = budget_spent or (elapsed >= cfg.time_budget_s and not best.report.verified)
@@ -331,5 +504,12 @@ def match_pair(
         budget_spent=budget_spent,
         time_s=elapsed,
         notes=tuple(notes),
+        matcher=_matcher_name(best.report.rung, ladder.learned_name),
+        choice=choice,
+        unrelated=unrelated,
         source_features=ladder.features.get(f"sift{cfg.max_features}@{cfg.sift_max_side}", (None, None))[1],
     )
+
+
+def _matcher_name(rung: str, learned: str) -> str:
+    return {"learned": learned, "asift": "ASIFT (OpenCV AffineFeature + SIFT)"}.get(rung, "SIFT (OpenCV)")

@@ -1,5 +1,7 @@
-"""The ``learned`` rung of the matching ladder: an end-to-end keypoint + matcher ONNX graph such
-as LightGlue-ONNX's SuperPoint + LightGlue pipeline export, run through ONNX Runtime.
+"""The ``learned`` rung of the matching ladder: which learned matcher ``matching.learned_matcher``
+selects (:func:`learned_matcher`): XFeat + LighterGlue on torch (:mod:`geofill.match.xfeat`), or an
+end-to-end keypoint + matcher ONNX graph such as LightGlue-ONNX's SuperPoint + LightGlue pipeline
+export, run through ONNX Runtime (:class:`LearnedMatcher`, below).
 
 The graph's contract (that of the LightGlue-ONNX pipeline export): one input ``images``
 (2, 1, H, W) float32 grey in [0, 1], the target then the source, H and W multiples of 8; outputs
@@ -56,8 +58,11 @@ class LearnedMatcher:
             )
         self.input_name = inputs[0].name
 
-    def __call__(self, gray_t: np.ndarray, gray_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Matched positions (M, 2) in each image's own pixels, and the matcher's scores (M,)."""
+    def __call__(
+        self, gray_t: np.ndarray, gray_s: np.ndarray, mask_t: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Matched positions (M, 2) in each image's own pixels, and the matcher's scores (M,). The
+        graph detects on the whole target: ``mask_t`` is the ladder's to apply."""
         f = min(1.0, self.max_side / max(*gray_t.shape, *gray_s.shape))
         small = [_resized(g, f) for g in (gray_t, gray_s)]
         h = -(-max(g.shape[0] for g in small) // _CELL) * _CELL
@@ -95,12 +100,32 @@ def resolve_matcher_model(
     return resolve_weights(MATCHER_WEIGHTS, cfg.learned_model, allow_download=cfg.download, say=say)
 
 
-def learned_matcher(cfg: MatchingConfig) -> tuple[LearnedMatcher | None, str]:
+def learned_matcher(cfg: MatchingConfig) -> tuple[Callable | None, str]:
     """The matcher ``cfg`` asks for and what was used (for the report), or (None, why not).
-    ``learned = on`` or an explicit model path that cannot be used raises :class:`MatcherModelError`."""
+    ``learned = on`` or an explicit model path that cannot be used raises (the missing extra:
+    :class:`MissingExtraError`; unusable weights: :class:`MatcherModelError`)."""
     if cfg.learned == "off" and not cfg.learned_model:
         return None, "matching.learned is off"
     required = cfg.learned == "on" or bool(cfg.learned_model)
+    if cfg.learned_model or cfg.learned_matcher == "onnx":
+        return _onnx_matcher(cfg, required)
+    from .xfeat import missing_modules, require_extra, xfeat_matcher
+
+    missing = missing_modules()
+    if missing:
+        if required:
+            require_extra()
+        return None, f"the learned matcher needs the 'learned' extra (not installed: {', '.join(missing)})"
+    try:
+        matcher = xfeat_matcher(cfg.learned_max_keypoints, cfg.learned_max_side)
+    except MatcherModelError as exc:
+        if required:
+            raise
+        return None, str(exc)
+    return matcher, matcher.describe
+
+
+def _onnx_matcher(cfg: MatchingConfig, required: bool) -> tuple[LearnedMatcher | None, str]:
     if not available("onnxruntime"):
         if required:
             require("onnxruntime", "learned matching (matching.learned)")

@@ -4,7 +4,7 @@ Parameters
     Rotation R, translation t (source -> target, ``X_t = R X_s + t``), depth scale s and offset b
     applied in the space of the initial depth fit (``AlignedDepth.space``): the depth used is
     ``s v + b`` where v is the initial aligned depth (``space == "depth"``) or inverse depth
-    (``"inverse"``, the default), so s = 1, b = 0 is the initial guess. Optionally (issue 7) a log
+    (``"inverse"``, the default), so s = 1, b = 0 is the initial guess. Optionally a log
     focal scale phi multiplies both images' focal lengths by exp(phi), with a weak prior.
 
 Objective (one function, :func:`objective`, used by both solvers)

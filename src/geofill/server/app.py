@@ -5,6 +5,7 @@ serves the Swagger UI files it ships, the page is plain HTML/JS/CSS in ``static/
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import re
 import shutil
@@ -24,10 +25,18 @@ from starlette.requests import ClientDisconnect
 
 from ..config import FillConfig
 from ..errors import ConfigError, GeoFillError, ImageTooLargeError
+from ..progress import STAGE_WORDS
 from .jobs import JobManager, QueueFullError, ServerSettings
-from .schema import LOCKED_KEYS, apply_request_config, config_fields, with_config_schema
+from .schema import (
+    COMMON_KEYS,
+    LOCKED_KEYS,
+    apply_request_config,
+    config_fields,
+    config_sections,
+    with_config_schema,
+)
 from .uploads import SOURCE_MASK_FIELD, UploadError, receive_fill_form
-from .worker import COVERAGE_FILE, RESULT_FILE, STAGES, source_file, source_mask_file
+from .worker import COVERAGE_FILE, RESULT_FILE, source_file, source_mask_file
 
 STATIC = Path(__file__).parent / "static"
 #: Job ids are ``secrets.token_urlsafe(24)``: anything else is unknown without a lookup.
@@ -59,6 +68,14 @@ _CONFIG_FIELD: dict[str, Any] = {
         "description": "JSON object of FillConfig overrides, nested or dotted "
         '(e.g. {"depth": {"backend": "stereo"}}); see GET /api/v1/config',
     },
+}
+
+
+_NO_SUCH_JOB: dict[str, Any] = {"description": "no such job (never created, expired or deleted)"}
+#: The errors of the routes that serve a job's files.
+_JOB_FILE_ERRORS: dict[int | str, dict[str, Any]] = {
+    404: _NO_SUCH_JOB,
+    409: {"description": "the job has no result (queued, running, failed or cancelled)"},
 }
 
 
@@ -178,6 +195,9 @@ def create_app(
 
     @app.get("/api/v1/config/fields", summary="The fill config as a flat list of fields (for forms)")
     async def get_fields() -> dict[str, Any]:
+        """Each key with its kind, default, bounds (``range``: a number's, or each list item's;
+        ``length``: a list's item count), choices and description; ``sections`` describes each
+        section in pipeline order; ``common`` lists the keys a form offers first."""
         defaults = base.to_dict()
         rows = []
         for f in config_fields():
@@ -194,9 +214,16 @@ def create_app(
                     "choices": list(f.choices),
                     "description": f.description,
                     "locked": f.locked,
+                    "range": dataclasses.asdict(f.range) if f.range else None,
+                    "length": [f.length.lo, f.length.hi] if f.length else None,
                 }
             )
-        return {"fields": rows, "locked": sorted(LOCKED_KEYS)}
+        return {
+            "fields": rows,
+            "sections": [{"key": k, "description": d} for k, d in config_sections()],
+            "common": list(COMMON_KEYS),
+            "locked": sorted(LOCKED_KEYS),
+        }
 
     @app.get("/api/v1/limits", summary="Upload and queue limits of this server")
     async def get_limits() -> dict[str, Any]:
@@ -208,7 +235,7 @@ def create_app(
             "queue_size": settings.queue_size,
             "workers": settings.workers,
             "job_ttl_s": settings.job_ttl_s,
-            "stages": STAGES,
+            "stages": STAGE_WORDS,
         }
 
     @app.post(
@@ -220,6 +247,7 @@ def create_app(
             202: {"description": "queued; poll the job"},
             400: {"description": "malformed request or input images"},
             413: {"description": "an upload over a byte or pixel limit (named)"},
+            415: {"description": "the body is not multipart/form-data"},
             422: {"description": "bad config (the key is named)"},
             429: {"description": "the queue is full; see Retry-After"},
         },
@@ -260,7 +288,7 @@ def create_app(
             return _error(422, str(exc))
         except ImageTooLargeError as exc:
             shutil.rmtree(folder, ignore_errors=True)
-            return _error(413, _field_names(str(exc), folder) + f" (max_pixels {settings.max_pixels})")
+            return _error(413, _field_names(str(exc), folder))
         except GeoFillError as exc:
             shutil.rmtree(folder, ignore_errors=True)
             return _error(400, _field_names(str(exc), folder))
@@ -279,7 +307,11 @@ def create_app(
     def _unknown() -> JSONResponse:
         return _error(404, "no such job (it may have expired)")
 
-    @app.get("/api/v1/jobs/{job_id}", summary="State, stage, progress; the report when done")
+    @app.get(
+        "/api/v1/jobs/{job_id}",
+        summary="State, stage, progress; the report when done",
+        responses={404: _NO_SUCH_JOB},
+    )
     async def get_job(job_id: str) -> JSONResponse:
         snap = manager().snapshot(job_id) if _job_id_ok(job_id) else None
         return _unknown() if snap is None else JSONResponse(snap)
@@ -299,7 +331,7 @@ def create_app(
         "/api/v1/jobs/{job_id}/result",
         summary="The filled image (PNG, full resolution)",
         response_class=FileResponse,
-        responses={200: {"content": {"image/png": {}}}, 404: {}, 409: {}},
+        responses={200: {"content": {"image/png": {}}}, **_JOB_FILE_ERRORS},
     )
     async def get_result(job_id: str) -> Response:
         return _job_file(job_id, RESULT_FILE)
@@ -308,12 +340,16 @@ def create_app(
         "/api/v1/jobs/{job_id}/coverage",
         summary="Who filled each hole pixel (RGBA PNG: a colour per reference, red = painted)",
         response_class=FileResponse,
-        responses={200: {"content": {"image/png": {}}}, 404: {}, 409: {}},
+        responses={200: {"content": {"image/png": {}}}, **_JOB_FILE_ERRORS},
     )
     async def get_coverage(job_id: str) -> Response:
         return _job_file(job_id, COVERAGE_FILE)
 
-    @app.delete("/api/v1/jobs/{job_id}", summary="Cancel a job (or delete a finished one now)")
+    @app.delete(
+        "/api/v1/jobs/{job_id}",
+        summary="Cancel a job (or delete a finished one now)",
+        responses={404: _NO_SUCH_JOB},
+    )
     async def delete_job(job_id: str) -> JSONResponse:
         snap = await run_in_threadpool(manager().cancel, job_id) if _job_id_ok(job_id) else None
         return _unknown() if snap is None else JSONResponse(snap)

@@ -20,7 +20,8 @@ from multiprocessing.connection import wait
 from pathlib import Path
 from typing import Any
 
-from .worker import STAGES, JobSpec, worker_main
+from ..progress import STAGE_WORDS
+from .worker import JobSpec, worker_main
 
 #: Stage messages and notes kept per job (a runaway pipeline cannot grow a job without bound).
 MAX_NOTES = 200
@@ -67,6 +68,7 @@ class Job:
     state: str = "queued"  # queued | running | done | failed | cancelled
     stage: str = ""
     stages_seen: list[str] = field(default_factory=list)
+    fraction: float = 0.0  # of the fill done, from the worker, never decreasing
     notes: list[str] = field(default_factory=list)
     summary: dict[str, Any] | None = None
     error: str | None = None
@@ -76,16 +78,12 @@ class Job:
 
     def public(self) -> dict[str, Any]:
         """The job as ``GET /api/v1/jobs/{id}`` shows it."""
-        names = list(STAGES)
-        position = names.index(self.stage) + 1 if self.stage in names else 0
-        progress = {"done": 1.0, "queued": 0.0}.get(
-            self.state, (position - 1) / len(names) if position else 0
-        )
+        progress = 1.0 if self.state == "done" else self.fraction
         out: dict[str, Any] = {
             "id": self.id,
             "state": self.state,
             "stage": self.stage,
-            "stage_text": STAGES.get(self.stage, self.stage),
+            "stage_text": STAGE_WORDS.get(self.stage, self.stage),
             "stages_done": [s for s in self.stages_seen if s != self.stage or self.state != "running"],
             "progress": round(progress, 3),
             "notes": list(self.notes),
@@ -326,6 +324,8 @@ class JobManager:
             if kind == "stage":
                 job.stage = msg[1]
                 job.stages_seen.append(msg[1])
+            elif kind == "progress":
+                job.fraction = max(job.fraction, msg[1])
             elif kind == "note" and len(job.notes) < MAX_NOTES:
                 job.notes.append(msg[1].replace(f"{job.folder}{os.sep}", ""))
             elif kind == "done":

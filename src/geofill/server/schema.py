@@ -13,9 +13,9 @@ import functools
 import types
 import typing
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
-from ..config import FillConfig
+from ..config import FillConfig, Length, Range
 from ..errors import ConfigError
 
 #: Keys a request may not set: they name files or allow downloads on the server's machine, which only
@@ -26,10 +26,24 @@ LOCKED_KEYS = frozenset(
         "depth.file_path",
         "depth.model_path",
         "depth.download",
+        "matching.learned_model",
+        "matching.download",
         "inpaint.lama_model",
         "inpaint.download",
         "max_pixels",
     }
+)
+
+#: The keys the page offers first, in this order: what a user changes before anything else (what
+#: is done with a removed object the references show, how the rest is painted, the depth, the colour
+#: match, a known focal length, the speed/detail trade-off). The others are grouped by section.
+COMMON_KEYS = (
+    "screen.removed_object",
+    "inpaint.method",
+    "depth.backend",
+    "refine.colour",
+    "intrinsics.focal_px",
+    "working_max_side",
 )
 
 
@@ -45,23 +59,37 @@ class ConfigField:
     description: str
     section: str  # "" for top-level keys
     locked: bool  # set by the server's operator only
+    range: Range | None = None  # a number's bounds; for a list, each item's
+    length: Length | None = None  # a list's number of items
 
 
-def _kind(tp: Any) -> tuple[str, bool, tuple[Any, ...]]:
-    """(kind, optional, choices) of a config type hint."""
+def _extras(tp: Any) -> tuple[Any, tuple[Any, ...]]:
+    """(``tp`` without ``Annotated``, its ``Annotated`` metadata)."""
+    if typing.get_origin(tp) is Annotated:
+        return typing.get_args(tp)[0], tp.__metadata__
+    return tp, ()
+
+
+def _first(metadata: tuple[Any, ...], kind: type) -> Any:
+    return next((m for m in metadata if isinstance(m, kind)), None)
+
+
+def _kind(tp: Any) -> tuple[str, bool, tuple[Any, ...], Range | None, Length | None]:
+    """(kind, optional, choices, range, length) of a config type hint (with its extras)."""
     optional = False
-    origin = typing.get_origin(tp)
-    if origin in (typing.Union, types.UnionType):
+    if typing.get_origin(tp) in (typing.Union, types.UnionType):
         args = [a for a in typing.get_args(tp) if a is not type(None)]
         optional = len(args) < len(typing.get_args(tp))
         tp = args[0] if len(args) == 1 else tp
-        origin = typing.get_origin(tp)
+    tp, metadata = _extras(tp)
+    origin = typing.get_origin(tp)
     if origin is Literal:
-        return "choice", optional, typing.get_args(tp)
+        return "choice", optional, typing.get_args(tp), None, None
     if origin in (list, tuple):
-        return "list", optional, ()
+        _, item_metadata = _extras((typing.get_args(tp) or (Any,))[0])
+        return "list", optional, (), _first(item_metadata, Range), _first(metadata, Length)
     names = {bool: "bool", int: "int", float: "float", str: "str"}
-    return names.get(tp, "str"), optional, ()
+    return names.get(tp, "str"), optional, (), _first(metadata, Range), None
 
 
 @functools.cache
@@ -70,23 +98,36 @@ def config_fields() -> tuple[ConfigField, ...]:
     out: list[ConfigField] = []
 
     def walk(cls: type, defaults: Any, prefix: str) -> None:
-        hints = typing.get_type_hints(cls)
+        hints = typing.get_type_hints(cls, include_extras=True)
         for f in dataclasses.fields(cls):
             tp = hints[f.name]
             value = getattr(defaults, f.name)
             if dataclasses.is_dataclass(tp):
                 walk(tp, value, f"{prefix}{f.name}.")
                 continue
-            kind, optional, choices = _kind(tp)
+            kind, optional, choices, bounds, length = _kind(tp)
             key = f"{prefix}{f.name}"
+            section, locked = prefix[:-1], key in LOCKED_KEYS
             out.append(
                 ConfigField(
-                    key, kind, value, optional, choices, f.metadata["help"], prefix[:-1], key in LOCKED_KEYS
+                    key, kind, value, optional, choices, f.metadata["help"], section, locked, bounds, length
                 )
             )
 
     walk(FillConfig, FillConfig(), "")
     return tuple(out)
+
+
+@functools.cache
+def config_sections() -> tuple[tuple[str, str], ...]:
+    """(name, description) of each section of :class:`FillConfig` in declaration order (the
+    pipeline's), the description being the section class's docstring on one line."""
+    hints = typing.get_type_hints(FillConfig)
+    return tuple(
+        (f.name, " ".join((hints[f.name].__doc__ or "").split()))
+        for f in dataclasses.fields(FillConfig)
+        if dataclasses.is_dataclass(hints[f.name])
+    )
 
 
 def flatten(data: Any, where: str = "config") -> dict[str, Any]:

@@ -24,26 +24,6 @@ if TYPE_CHECKING:  # numpy is imported where used: the server process starts wit
 
     from ..io import LoadedImage
 
-#: Stages a job goes through, in order, with the words the page shows (the pipeline's stage names,
-#: plus the worker's own reading and writing).
-STAGES: dict[str, str] = {
-    "read inputs": "Reading the photos",
-    "check inputs": "Checking the inputs",
-    "prepare": "Preparing working images",
-    "match": "Matching features between the photos",
-    "focal": "Estimating the focal length",
-    "pose": "Estimating the camera positions",
-    "triangulate": "Triangulating matched points",
-    "depth": "Estimating depth",
-    "optimize": "Refining camera pose and depth",
-    "render": "Projecting the reference into the photo",
-    "refine": "Aligning and matching colours",
-    "shared focal": "Estimating one focal length for all photos",
-    "fuse": "Choosing the best reference for each pixel",
-    "composite": "Blending the fill",
-    "write result": "Saving the result",
-}
-
 #: Coverage colours (RGB): painted by single-image inpainting, then reference 1, 2, ... (cycled).
 PAINTED_RGB = (230, 60, 60)
 REFERENCE_RGB = ((40, 170, 90), (50, 120, 220), (240, 170, 30), (170, 80, 200), (30, 190, 200))
@@ -81,13 +61,14 @@ class FillOutcome:
     source_map: np.ndarray  # HxW int16: -1 outside the hole, 0 painted, k >= 1 from reference k
     report: dict[str, Any]
     status: str  # "reference" | "single_image"
-    fallbacks: tuple[str, ...]
+    fallbacks: tuple[str, ...]  # in plain words (the technical reasons are in the report)
     notices: tuple[str, ...]  # what the user should know about how their request was used
     refused: str = ""  # what was not copied from the references, in plain words
 
 
 class StageProgress(Progress):
-    """Progress that sends each stage's start and each message to the server instead of printing."""
+    """Progress that sends each stage's start, each plain message and the done fraction to the
+    server instead of printing (the technical details are logged only)."""
 
     def __init__(self, send: Callable[[tuple], None]) -> None:
         super().__init__(quiet=True)
@@ -96,6 +77,9 @@ class StageProgress(Progress):
     def say(self, message: str) -> None:
         super().say(message)  # logged only: this progress is quiet
         self._send(("note", message))
+
+    def on_fraction(self, before: float, now: float) -> None:
+        self._send(("progress", now))
 
     @contextmanager
     def stage(self, name: str) -> Iterator[list[str]]:
@@ -117,9 +101,8 @@ def run_fill(
 
     result = fill_loaded(target, hole, sources, config, source_masks=source_masks, progress=progress)
     r = result.report
-    return FillOutcome(
-        result.image, result.source_map, r.to_dict(), r.status, tuple(r.fallbacks), (), r.refused_words()
-    )
+    dropped = tuple(r.dropped_words())
+    return FillOutcome(result.image, result.source_map, r.to_dict(), r.status, dropped, (), r.refused_words())
 
 
 def coverage_rgba(source_map: np.ndarray) -> np.ndarray:
@@ -173,6 +156,7 @@ def execute(spec: JobSpec, send: Callable[[tuple], None]) -> dict[str, Any]:
     folder = Path(spec.folder)
     cfg = FillConfig.from_dict(spec.config)
     prog = StageProgress(send)
+    started = prog.wall_s()
     with prog.stage("read inputs"):
         target = read_image(folder / TARGET_FILE, max_pixels=cfg.max_pixels, min_side=cfg.min_side_px)
         hole = read_mask(folder / MASK_FILE, max_pixels=cfg.max_pixels)
@@ -190,7 +174,9 @@ def execute(spec: JobSpec, send: Callable[[tuple], None]) -> dict[str, Any]:
         ]
     outcome = run_fill(target, hole, sources, cfg, prog, masks)
     with prog.stage("write result"):
-        write_image_atomic(folder / RESULT_FILE, outcome.image)
+        # With the target's EXIF, as the command line writes it: the lens it names is the focal
+        # prior of a fill that starts again from this result.
+        write_image_atomic(folder / RESULT_FILE, outcome.image, metadata=target.metadata)
         # RGBA, which write_image_atomic (RGB outputs) does not write; the job is not done before
         # this returns, so nobody reads a half-written file.
         Image.fromarray(coverage_rgba(outcome.source_map)).save(folder / COVERAGE_FILE, compress_level=3)
@@ -204,6 +190,7 @@ def execute(spec: JobSpec, send: Callable[[tuple], None]) -> dict[str, Any]:
         "summary": "; ".join(filter(None, (plain_summary(rows), outcome.refused))),
         "report": outcome.report,
         "timings_s": dict(prog.timings),
+        "wall_s": prog.wall_s() - started,
     }
 
 

@@ -23,15 +23,17 @@ const state = {
   tool: "brush",
   spaceDown: false,
   pan: null, // {x, y, ox, oy} while dragging the view
-  view: { scale: 1, ox: 0, oy: 0 },
+  view: { scale: 1, ox: 0, oy: 0, fitted: true }, // fitted: re-fit when the editor's size changes
   pointer: null, // last pointer position in canvas px
   job: null, // {id, timer, refsVersion}
   result: null, // {bitmap, coverage, data, refsVersion}
-  fields: [],
+  fields: [], // the config's options, each with its input and row
+  sections: [], // {details, count, members}: the options' groups
 };
 
 const view = $("view");
 const ctx = view.getContext("2d");
+const canvasBox = $("canvas-box");
 
 // A photo with its mask: ops is the undo stack ({type: "stroke", erase, size, points} |
 // {type: "clear"} | {type: "mask", canvas}), view its zoom and pan when another photo is open.
@@ -72,10 +74,11 @@ async function decode(blob) {
 
 async function setTarget(blob, name) {
   const bitmap = await decode(blob);
+  say(""); // an earlier file's error no longer applies
   state.target = { blob, name, layer: newLayer(bitmap, HOLE_RGB) };
   state.result = null;
   $("drop-target").hidden = true;
-  view.hidden = false;
+  canvasBox.hidden = false;
   $("result").hidden = true;
   openLayer(state.target.layer);
 }
@@ -89,26 +92,28 @@ function openLayer(layer) {
   }
   $("tools-title").textContent = i < 0 ? "1. Mark the hole" : `Mark what not to copy from reference ${i + 1}`;
   $("compare").hidden = i >= 0 || !state.result;
-  resize(); // the bars above the photo may have come or gone
+  // On one column the editor takes the photo's shape (style.css).
+  canvasBox.style.setProperty("--photo-aspect", `${layer.bitmap.width} / ${layer.bitmap.height}`);
   if (layer !== state.doc) {
     if (state.doc) state.doc.view = { ...state.view };
     state.doc = layer;
     state.stroke = null;
-    if (layer.view) state.view = { ...layer.view };
-    else fit();
+    state.view = layer.view ? { ...layer.view } : { scale: 1, ox: 0, oy: 0, fitted: true };
   }
+  resize(); // the bars around the photo may have come or gone
   rebuildMask();
   renderRefs();
   update();
 }
 
 async function addRefs(files) {
+  const errors = [];
   for (const file of files) {
     let bitmap;
     try {
       bitmap = await decode(file); // refuse now what the browser cannot show as a thumbnail
     } catch (e) {
-      say(e.message);
+      errors.push(e.message);
       continue;
     }
     const thumb = document.createElement("canvas");
@@ -118,6 +123,7 @@ async function addRefs(files) {
     state.refs.push({ file, url: URL.createObjectURL(file), layer: newLayer(bitmap, KEEP_OUT_RGB), thumb });
     state.refsVersion++;
   }
+  say(errors.join(" ")); // an earlier file's error no longer applies
   renderRefs();
   update();
 }
@@ -204,6 +210,7 @@ async function useMaskFile(file) {
     d[i] = r; d[i + 1] = g; d[i + 2] = b; d[i + 3] = hole ? 255 : 0;
   }
   cc.putImageData(px, 0, 0);
+  say(""); // an earlier file's error no longer applies
   pushOp({ type: "mask", canvas: c });
 }
 
@@ -291,18 +298,30 @@ const showingResult = () => Boolean(state.result) && isTarget(state.doc);
 
 // ---------------------------------------------------------------- view: zoom, pan, render
 
+// The canvas's bitmap takes its box's size in device px (so the photo keeps its shape); a fitted
+// photo is fitted again, a zoomed one keeps the point at the centre.
 function resize() {
   const dpr = window.devicePixelRatio || 1;
-  view.width = Math.max(1, Math.round(view.clientWidth * dpr));
-  view.height = Math.max(1, Math.round(view.clientHeight * dpr));
-  render();
+  const box = canvasBox.getBoundingClientRect();
+  const width = Math.max(1, Math.round(box.width * dpr));
+  const height = Math.max(1, Math.round(box.height * dpr));
+  if (width !== view.width || height !== view.height) {
+    const [cx, cy] = toImage(view.width / 2, view.height / 2);
+    view.width = width;
+    view.height = height;
+    const v = state.view;
+    v.ox = width / 2 - cx * v.scale;
+    v.oy = height / 2 - cy * v.scale;
+  }
+  if (state.view.fitted) fit();
+  else render();
 }
 
 function fit() {
   if (!state.doc) return;
   const { width, height } = state.doc.bitmap;
   const s = Math.min(view.width / width, view.height / height);
-  state.view = { scale: s, ox: (view.width - width * s) / 2, oy: (view.height - height * s) / 2 };
+  state.view = { scale: s, ox: (view.width - width * s) / 2, oy: (view.height - height * s) / 2, fitted: true };
   render();
 }
 
@@ -312,12 +331,14 @@ function zoomAt(factor, cx = view.width / 2, cy = view.height / 2) {
   v.ox = cx - ((cx - v.ox) * s) / v.scale;
   v.oy = cy - ((cy - v.oy) * s) / v.scale;
   v.scale = s;
+  v.fitted = false;
   render();
 }
 
 function panBy(dx, dy) {
   state.view.ox += dx;
   state.view.oy += dy;
+  state.view.fitted = false;
   render();
 }
 
@@ -341,16 +362,19 @@ function render() {
   ctx.imageSmoothingEnabled = v.scale < 2;
   ctx.drawImage(state.doc.bitmap, 0, 0);
   if (showingResult()) {
+    // Before | after: the photo left of the divider, the result right of it.
     const split = (Number($("split").value) / 100) * width;
     ctx.save();
     ctx.beginPath();
-    ctx.rect(0, 0, split, height);
+    ctx.rect(split, 0, width - split, height);
     ctx.clip();
     ctx.drawImage(state.result.bitmap, 0, 0);
     if ($("show-coverage").checked) ctx.drawImage(state.result.coverage, 0, 0);
     ctx.restore();
     ctx.fillStyle = "#fff";
     ctx.fillRect(split - 1 / v.scale, 0, 2 / v.scale, height);
+    ctx.setTransform(1, 0, 0, 1, 0, 0);
+    dividerLabels(v.ox + split * v.scale, Math.max(v.oy, 0));
   } else {
     ctx.globalAlpha = MASK_OPACITY;
     ctx.drawImage(state.doc.mask, 0, 0);
@@ -367,6 +391,22 @@ function render() {
   $("zoom-value").textContent = `${Math.round(v.scale * 100)} %`;
 }
 
+// "Before" and "After" beside the divider's top (x, y in canvas px), each on its own side.
+function dividerLabels(x, y) {
+  const dpr = window.devicePixelRatio || 1;
+  const pad = 6 * dpr;
+  ctx.font = `600 ${12 * dpr}px system-ui, sans-serif`;
+  ctx.textBaseline = "top";
+  for (const [text, side] of [["Before", -1], ["After", 1]]) {
+    const w = ctx.measureText(text).width + 2 * pad;
+    const left = side < 0 ? x - pad - w : x + pad;
+    ctx.fillStyle = "rgba(0, 0, 0, 0.6)";
+    ctx.fillRect(left, y + pad, w, 18 * dpr);
+    ctx.fillStyle = "#fff";
+    ctx.fillText(text, left + pad, y + pad + 3 * dpr);
+  }
+}
+
 function brushSize() {
   return Number($("brush-size").value) * (window.devicePixelRatio || 1);
 }
@@ -380,11 +420,32 @@ function setTool(tool) {
   render();
 }
 
+// Two fingers on a touch screen zoom and pan (a stroke the first finger began is dropped).
+const touches = new Map(); // pointerId -> [x, y] in canvas px
+let pinch = null; // {d, x, y}: the fingers' distance and midpoint at the last move
+
+function pinchOf() {
+  const [[ax, ay], [bx, by]] = [...touches.values()];
+  return { d: Math.max(Math.hypot(bx - ax, by - ay), 1), x: (ax + bx) / 2, y: (ay + by) / 2 };
+}
+
 view.addEventListener("pointerdown", (e) => {
   if (!state.doc) return;
   view.focus();
   view.setPointerCapture(e.pointerId);
   const [x, y] = canvasPoint(e);
+  if (e.pointerType === "touch") {
+    touches.set(e.pointerId, [x, y]);
+    if (touches.size >= 2) {
+      if (state.stroke) {
+        state.stroke = null;
+        rebuildMask();
+      }
+      state.pan = null;
+      pinch = touches.size === 2 ? pinchOf() : null;
+      return;
+    }
+  }
   const panning = e.button === 1 || state.tool === "pan" || state.spaceDown || showingResult();
   if (panning) {
     state.pan = { x, y, ox: state.view.ox, oy: state.view.oy };
@@ -399,10 +460,19 @@ view.addEventListener("pointerdown", (e) => {
 
 view.addEventListener("pointermove", (e) => {
   const [x, y] = canvasPoint(e);
+  if (touches.has(e.pointerId)) touches.set(e.pointerId, [x, y]);
+  if (pinch && touches.size === 2) {
+    const now = pinchOf();
+    panBy(now.x - pinch.x, now.y - pinch.y);
+    zoomAt(now.d / pinch.d, now.x, now.y);
+    pinch = now;
+    return;
+  }
   state.pointer = [x, y];
   if (state.pan) {
     state.view.ox = state.pan.ox + x - state.pan.x;
     state.view.oy = state.pan.oy + y - state.pan.y;
+    state.view.fitted = false;
   } else if (state.stroke) {
     state.stroke.points.push(toImage(x, y));
     const p = state.stroke.points;
@@ -411,7 +481,12 @@ view.addEventListener("pointermove", (e) => {
   render();
 });
 
-function endPointer() {
+function endPointer(e) {
+  touches.delete(e.pointerId);
+  if (pinch || touches.size) {
+    pinch = null; // the fingers left after a pinch neither draw nor pan
+    return;
+  }
   if (state.stroke) {
     const stroke = state.stroke;
     state.stroke = null;
@@ -472,65 +547,195 @@ function stepSize(direction) {
 
 // ---------------------------------------------------------------- advanced options (from the schema)
 
+// Plain titles of the config's sections (the server lists them in the pipeline's order); "" holds
+// the top-level keys.
+const SECTION_TITLES = {
+  intrinsics: "Camera focal length",
+  matching: "Matching points between the photos",
+  geometry: "Camera positions",
+  depth: "Depth of the reference",
+  optimize: "Fine alignment of position and depth",
+  render: "Rendering the reference",
+  inpaint: "Painting what no reference shows",
+  refine: "Alignment and colour match",
+  fusion: "Combining several references",
+  screen: "What may be copied",
+  "": "Limits and speed",
+};
+
+// ``code`` and :role:`code` in a description (the config's docstring markup) as <code>.
+function richText(el, text) {
+  const parts = text.split(/``([^`]+)``|:[a-z]+:`([^`]+)`/);
+  parts.forEach((part, i) => {
+    if (part === undefined || part === "") return;
+    if (i % 3 === 0) el.append(part);
+    else el.append(Object.assign(document.createElement("code"), { textContent: part }));
+  });
+}
+
+const number = (x) => (Math.abs(x) >= 1e4 ? x.toLocaleString("en") : String(x));
+
+// "0 to 1", "above 0, up to 10": a number's bounds in words.
+function rangeText(r) {
+  const lo = r.lo_open ? `above ${number(r.lo)}` : `${number(r.lo)}`;
+  const hi = r.hi_open ? `below ${number(r.hi)}` : `${r.lo_open ? "up to " : "to "}${number(r.hi)}`;
+  return r.lo_open || r.hi_open ? `${lo}, ${hi}` : `${lo} ${hi}`;
+}
+
+// What a field allows and its default, in words.
+function limitsText(f) {
+  const shown = (v) => (v === null ? "automatic" : Array.isArray(v) ? v.join(", ") : String(v));
+  const parts = [`Default: ${shown(f.default)}`];
+  if (f.kind === "list") {
+    const [lo, hi] = f.length || [];
+    const count = f.length ? (lo === hi ? `${lo} values` : `${lo} to ${hi} values`) : "values";
+    parts.push(f.range ? `${count}, each ${rangeText(f.range)}` : count);
+  } else if (f.range) parts.push(rangeText(f.range));
+  if (f.optional && f.kind !== "list") parts.push("empty: automatic");
+  return `${parts.join(" · ")}.`;
+}
+
+function fieldInput(f) {
+  let input;
+  if (f.kind === "choice") {
+    input = document.createElement("select");
+    for (const c of f.choices) input.append(new Option(String(c), JSON.stringify(c)));
+  } else if (f.kind === "bool") {
+    input = document.createElement("input");
+    input.type = "checkbox";
+  } else {
+    input = document.createElement("input");
+    const numeric = f.kind === "int" || f.kind === "float";
+    input.type = numeric ? "number" : "text";
+    if (numeric) input.step = f.kind === "int" ? "1" : "any";
+    if (numeric && f.range) {
+      input.min = f.range.lo;
+      input.max = f.range.hi;
+    }
+    if (f.optional) input.placeholder = "automatic";
+  }
+  input.id = `cfg-${f.key}`;
+  setFieldValue(f, input, f.default);
+  return input;
+}
+
+function setFieldValue(f, input, value) {
+  if (f.kind === "bool") input.checked = value;
+  else if (f.kind === "choice") input.value = JSON.stringify(value);
+  else input.value = value === null ? "" : f.kind === "list" ? value.join(", ") : String(value);
+}
+
+// One option: its name, its input, its description, what it allows and its default.
+function fieldRow(f, fullKey) {
+  const row = document.createElement("div");
+  row.className = "field";
+  row.dataset.key = f.key;
+  const input = fieldInput(f);
+  const label = document.createElement("label");
+  label.htmlFor = input.id;
+  const name = document.createElement("code");
+  // a long key may wrap after a dot or an underscore, not inside a word
+  (fullKey ? f.key : f.key.split(".").pop()).split(/(?<=[._])/).forEach((part, i) => {
+    if (i) name.append(document.createElement("wbr"));
+    name.append(part);
+  });
+  label.append(name);
+  const about = document.createElement("p");
+  richText(about, f.description);
+  about.id = `${input.id}-about`;
+  const limits = Object.assign(document.createElement("p"), { className: "limits", textContent: limitsText(f) });
+  input.setAttribute("aria-describedby", about.id);
+  input.addEventListener("change", optionsChanged);
+  row.append(label, input, about, limits);
+  f.input = input;
+  f.row = row;
+  return row;
+}
+
 async function loadFields() {
   const resp = await fetch("/api/v1/config/fields");
   if (!resp.ok) return;
-  const { fields } = await resp.json();
+  const { fields, sections, common } = await resp.json();
   state.fields = fields.filter((f) => !f.locked);
   const box = $("advanced-fields");
-  const sets = new Map();
-  for (const f of state.fields) {
-    const section = f.section || "general";
-    if (!sets.has(section)) {
-      const fs = document.createElement("fieldset");
-      const legend = document.createElement("legend");
-      legend.textContent = section;
-      fs.append(legend);
-      sets.set(section, fs);
-      box.append(fs);
-    }
-    const label = document.createElement("label");
-    label.title = f.description;
-    const name = document.createElement("span");
-    name.textContent = f.key.split(".").pop();
-    let input;
-    if (f.kind === "choice") {
-      input = document.createElement("select");
-      for (const c of f.choices) input.append(new Option(String(c), JSON.stringify(c)));
-      input.value = JSON.stringify(f.default);
-    } else if (f.kind === "bool") {
-      input = document.createElement("input");
-      input.type = "checkbox";
-      input.checked = f.default;
-    } else {
-      input = document.createElement("input");
-      const numeric = (f.kind === "int" || f.kind === "float") && !f.optional;
-      input.type = numeric ? "number" : "text";
-      if (numeric) input.step = f.kind === "int" ? "1" : "any";
-      input.value = f.default === null ? "" : f.kind === "list" ? JSON.stringify(f.default) : String(f.default);
-      if (f.optional) input.placeholder = "default";
-    }
-    input.dataset.key = f.key;
-    input.setAttribute("aria-description", f.description);
-    input.addEventListener("change", () => label.classList.toggle("changed", fieldValue(f, input).changed));
-    label.append(name, input);
-    sets.get(f.section || "general").append(label);
-    f.input = input;
+  const byKey = new Map(state.fields.map((f) => [f.key, f]));
+  const first = common.filter((k) => byKey.has(k));
+  if (first.length) {
+    box.append(Object.assign(document.createElement("h3"), { textContent: "Most often changed" }));
+    for (const key of first) box.append(fieldRow(byKey.get(key), true));
   }
+  const groups = [...sections, { key: "", description: "" }];
+  state.sections = [];
+  for (const { key, description } of groups) {
+    const members = state.fields.filter((f) => f.section === key && !first.includes(f.key));
+    if (!members.length) continue;
+    const details = document.createElement("details");
+    details.dataset.section = key;
+    const summary = document.createElement("summary");
+    const count = Object.assign(document.createElement("span"), { className: "count" });
+    summary.append(`${SECTION_TITLES[key] || key} `, count);
+    details.append(summary);
+    if (description) {
+      const about = Object.assign(document.createElement("p"), { className: "hint about" });
+      richText(about, key ? `${key}: ${description}` : description);
+      details.append(about);
+    }
+    for (const f of members) details.append(fieldRow(f, false));
+    state.sections.push({ details, count, members });
+    box.append(details);
+  }
+  optionsChanged();
+}
+
+// Marks the options that differ from their defaults, and counts them per section.
+function optionsChanged() {
+  let any = false;
+  for (const f of state.fields) {
+    const { changed } = fieldValue(f, f.input);
+    f.row.classList.toggle("changed", changed);
+    any ||= changed;
+  }
+  for (const { count, members } of state.sections) {
+    const changed = members.filter((f) => f.row.classList.contains("changed")).length;
+    count.textContent = changed ? `(${members.length}, ${changed} changed)` : `(${members.length})`;
+    count.classList.toggle("changed", changed > 0);
+  }
+  $("advanced-reset").disabled = !any;
+}
+
+// Shows only the options whose name or description has every word typed, opening their sections.
+function filterOptions() {
+  const words = $("advanced-filter").value.toLowerCase().split(/\s+/).filter(Boolean);
+  for (const f of state.fields) {
+    const text = `${f.key} ${f.description}`.toLowerCase();
+    f.row.hidden = !words.every((w) => text.includes(w));
+  }
+  for (const { details, members } of state.sections) {
+    const shown = members.some((f) => !f.row.hidden);
+    details.hidden = !shown;
+    details.open = words.length > 0 && shown;
+  }
+}
+
+function resetOptions() {
+  for (const f of state.fields) setFieldValue(f, f.input, f.default);
+  optionsChanged();
 }
 
 function fieldValue(f, input) {
   let value;
+  const text = input.value.trim();
   if (f.kind === "bool") value = input.checked;
   else if (f.kind === "choice") value = JSON.parse(input.value);
-  else if (input.value.trim() === "" && f.optional) value = null;
-  else if (f.kind === "int" || f.kind === "float") value = Number(input.value);
-  else if (f.kind === "list") {
-    try { value = JSON.parse(input.value); } catch (e) { value = input.value; } // the server names the bad key
+  else if (text === "" && f.optional) value = null;
+  else if (f.kind === "int" || f.kind === "float") {
+    // Not a number (the browser then reads ""): sent as such, the server's 422 names the key.
+    value = input.validity.badInput || text === "" ? "not a number" : Number(text);
+  } else if (f.kind === "list") {
+    const items = text.replace(/^\[|\]$/g, "").split(/[\s,]+/).filter(Boolean);
+    value = items.map(Number);
+    if (value.some(Number.isNaN)) value = input.value;
   } else value = input.value;
-  if (f.kind === "int" || f.kind === "float") {
-    if (Number.isNaN(value)) value = input.value; // sent as typed: the server's 422 names the key
-  }
   return { value, changed: JSON.stringify(value) !== JSON.stringify(f.default) };
 }
 
@@ -662,11 +867,27 @@ async function showResult(job) {
   $("download").href = `/api/v1/jobs/${id}/result`;
   $("result").hidden = false;
   $("compare").hidden = !isTarget(state.doc);
+  $("split").value = dividerStart();
   resize();
-  $("split").value = 50;
   update();
-  render();
   $("result").scrollIntoView({ block: "nearest" });
+}
+
+// Where the divider starts (% of the width): at the hole's left edge, so that all of the fill shows,
+// and at most half-way, so that the photo before shows too.
+function dividerStart() {
+  const mask = state.target.layer.mask;
+  const w = Math.min(256, mask.width);
+  const h = Math.max(1, Math.round((mask.height * w) / mask.width));
+  const small = document.createElement("canvas");
+  small.width = w;
+  small.height = h;
+  const sctx = small.getContext("2d");
+  sctx.drawImage(mask, 0, 0, w, h);
+  const alpha = sctx.getImageData(0, 0, w, h).data;
+  let left = w;
+  for (let i = 3; i < alpha.length; i += 4) if (alpha[i] > 0) left = Math.min(left, ((i - 3) / 4) % w);
+  return Math.min(50, Math.floor((100 * left) / w));
 }
 
 async function keepEditing() {
@@ -706,6 +927,10 @@ $("cancel").addEventListener("click", cancelFill);
 $("split").addEventListener("input", render);
 $("show-coverage").addEventListener("change", render);
 $("keep-editing").addEventListener("click", () => keepEditing().catch((e) => say(e.message)));
-window.addEventListener("resize", () => { if (state.doc) { resize(); fit(); } });
+// Whatever changes the editor's size (the window, a bar shown or hidden, the panel's content on
+// one column) sizes the canvas's bitmap again.
+new ResizeObserver(() => { if (state.doc) resize(); }).observe(canvasBox);
+$("advanced-filter").addEventListener("input", filterOptions);
+$("advanced-reset").addEventListener("click", resetOptions);
 loadFields();
 update();

@@ -1,0 +1,122 @@
+"""Cost of the learned matching rung (XFeat + LighterGlue, the ``learned`` extra) against the plain
+SIFT rung, per wide DEV pair at the working size (1280-px long side), the hole blanked as in a fill.
+
+    .venv/bin/python benchmarks/speed/learned_rung.py [--pairs DIR ...] [--repeats 3]
+
+Per pair, alternated in the same process (``--repeats`` rounds, medians): the ``sift`` rung
+(``matching.max_rung=sift``: SIFT on both images, matching, F verification), the learned matcher
+on a new target (features of both images + LighterGlue) and on a target already seen (another
+reference of the same fill: the target's features are reused). Wall seconds and the process's CPU
+seconds (all threads; torch runs ``torch.get_num_threads()`` of them): on a shared machine the wall
+time includes waiting for other processes, the CPU time does not. ``uptime`` before and after.
+The weights are loaded once before the rounds (printed). Figures, not a test.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from geofill.config import FillConfig
+from geofill.evaluation.pairs import load_pairs, pair_mask
+from geofill.match import match_pair
+from geofill.match.features import keypoint_mask, to_gray_u8
+from geofill.match.xfeat import INSTALL, missing_modules, xfeat_matcher
+from geofill.prepare import prepare_views
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root: benchmarks.common
+from benchmarks.common import PAIRS
+
+WIDE = ("dev_wide_",)
+
+
+def _uptime() -> str:
+    return subprocess.check_output(["uptime"], text=True).strip()
+
+
+def _timed(fn, *args) -> tuple[object, float, float]:
+    """``fn(*args)``, its wall and its CPU seconds."""
+    w, c = time.perf_counter(), time.process_time()
+    out = fn(*args)
+    return out, time.perf_counter() - w, time.process_time() - c
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--pairs", action="append", help="pair folder(s) (default: the wide DEV pairs)")
+    ap.add_argument("--repeats", type=int, default=3)
+    args = ap.parse_args(argv)
+    if missing_modules():
+        print(f"the learned extra is not installed: {INSTALL}")
+        return 1
+    import torch
+
+    pairs = load_pairs(args.pairs or [str(PAIRS)])
+    if not args.pairs:
+        pairs = [p for p in pairs if p.id.startswith(WIDE)]
+    cfg = FillConfig()
+    mc = cfg.matching
+    sift_only = dataclasses.replace(mc, max_rung="sift", learned="off")
+    w, c = time.perf_counter(), time.process_time()
+    matcher = xfeat_matcher(mc.learned_max_keypoints, mc.learned_max_side)
+    print(
+        f"loaded {matcher.describe} in {time.perf_counter() - w:.2f} s ({time.process_time() - c:.2f} s CPU)"
+    )
+    print(f"torch threads {torch.get_num_threads()}; load: {_uptime()}")
+    head = (
+        "size",
+        "sift_wall",
+        "sift_cpu",
+        "learned_wall",
+        "learned_cpu",
+        "warm_wall",
+        "warm_cpu",
+        "matches",
+    )
+    print(f"{'pair':<38s} " + " ".join(f"{h:>12s}" for h in head))
+    rows = []
+    for pair in pairs:
+        hole = pair_mask(pair, 0, 100.0)
+        target = pair.target.copy()
+        target[hole] = 0  # as the fill sees it
+        v = prepare_views(target, hole, pair.source, cfg, None, None)
+        gray_t, gray_s = to_gray_u8(v.target_gray), to_gray_u8(v.source_gray)
+        mask = keypoint_mask(v.hole, mc.hole_margin_px * v.px_scale)
+        times: dict[str, list[tuple[float, float]]] = {"sift": [], "cold": [], "warm": []}
+        found = 0
+        for _ in range(args.repeats):
+            _, *t = _timed(match_pair, v.target_gray, v.source_gray, v.hole, sift_only, v.px_scale)
+            times["sift"].append(tuple(t))
+            matcher._targets.clear()
+            _, *t = _timed(matcher, gray_t, gray_s, mask)
+            times["cold"].append(tuple(t))
+            out, *t = _timed(matcher, gray_t, gray_s, mask)
+            times["warm"].append(tuple(t))
+            found = len(out[0])
+        med = {
+            k: (statistics.median(x[0] for x in ts), statistics.median(x[1] for x in ts))
+            for k, ts in times.items()
+        }
+        rows.append(med)
+        size = f"{gray_t.shape[1]}x{gray_t.shape[0]}"
+        cells = [f"{x:.2f}" for k in ("sift", "cold", "warm") for x in med[k]]
+        print(
+            f"{pair.id[:38]:<38s} {size:>12s} " + " ".join(f"{x:>12s}" for x in cells) + f" {found:>12d}",
+            flush=True,
+        )
+    for k, name in (("sift", "sift rung"), ("cold", "learned, new target"), ("warm", "learned, target seen")):
+        print(
+            f"{name}: median wall {statistics.median(r[k][0] for r in rows):.2f} s, "
+            f"CPU {statistics.median(r[k][1] for r in rows):.2f} s"
+        )
+    print(f"load: {_uptime()}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

