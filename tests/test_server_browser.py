@@ -520,7 +520,8 @@ def test_result_view_divider_errors_and_small_windows_in_chromium(chromium, serv
         split = driver.find_element(By.ID, "split")
         start = int(split.get_attribute("value"))
         assert start <= 100 * 180 / W
-        assert np.abs(_pixel(driver, 240, 180) - result[180, 240]).mean() < 12
+        # the canvas is scaled: against the fill's local mean (the default painter keeps texture)
+        assert np.abs(_pixel(driver, 240, 180) - result[178:183, 238:243].mean(axis=(0, 1))).mean() < 12
         # at half-way: the photo (its magenta object) left, the result right
         _set_range(driver, split, 50)
         before, after = _pixel(driver, 225, 180), _pixel(driver, 255, 180)
