@@ -13,7 +13,7 @@ hole PSNR because PSNR rewards blur, and leaves a streaky smear (its hole has a 
 energy of the known ring around it; the truth's ratio is 1.0). On the whole-hole fallback of 8 DEV pairs
 (``benchmarks/quality/painter.py``) the exemplar painter keeps a gradient ratio of 0.90 at 0.4 dB of
 hole PSNR below Telea (14.9 vs 15.4 dB); inside reference fills (``geofill eval --limit 8``) its mean hole
-PSNR is Telea's (19.69 vs 19.66 dB). It costs 2-5x Telea's time (docs/results.md). PatchMatch
+PSNR is Telea's (19.50 vs 19.50 dB). It costs 2-5x Telea's time (docs/results.md). PatchMatch
 (PyPatchMatch) was the earlier alternative: 2.2 dB below Telea on the same cases at 3x the
 exemplar painter's time, and on large holes it copies whole structures into the wrong place (a
 second fox head, a second sign); Telea stays as the ``telea`` preset.
