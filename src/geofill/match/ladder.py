@@ -190,6 +190,42 @@ def verify_fundamental(
     return F, inl.ravel().astype(bool)
 
 
+def verify_essential(
+    pts_t: np.ndarray, pts_s: np.ndarray, threshold_px: float, K: tuple[np.ndarray, np.ndarray]
+) -> tuple[np.ndarray | None, np.ndarray]:
+    """The fundamental matrix of the calibrated geometry (MAGSAC++ essential matrix) that most
+    matches fit at one of ``FOCAL_SCALES`` times the prior (target, source) intrinsics ``K``, and
+    its inlier mask (Sampson distance < ``threshold_px``); (None, all False) when none is found.
+
+    Used for the learned rung, whose matches on repeated texture (the fox's wallpaper) hold whole
+    clusters shifted by a period on one plane: those fit a fundamental matrix of the plane's family
+    as well as the true matches do (a 43-49 deg pose in a fill), while an essential matrix cannot
+    take that form. The focal length is scanned because the prior can be far off (no EXIF)."""
+    best: tuple[int, np.ndarray | None, np.ndarray] = (0, None, np.zeros(len(pts_t), dtype=bool))
+    if len(pts_t) < MIN_MATCHES_FOR_F:
+        return best[1], best[2]
+    for scale in FOCAL_SCALES:
+        K_t, K_s = _focal_scaled(K, scale)
+        nt, ns = _normalised(pts_t, K_t), _normalised(pts_s, K_s)
+        try:
+            E, _ = cv2.findEssentialMat(ns, nt, np.eye(3), cv2.USAC_MAGSAC, 0.999, threshold_px / K_t[0, 0])
+        except cv2.error:
+            continue
+        if E is None:
+            continue
+        for k in range(0, E.shape[0], 3):  # the five-point solver can return several
+            keep = sampson_px(E[k : k + 3], nt, ns) * K_t[0, 0] < threshold_px
+            if keep.sum() > best[0]:
+                F = np.linalg.inv(K_t).T @ E[k : k + 3] @ np.linalg.inv(K_s)
+                best = (int(keep.sum()), F / np.linalg.norm(F), keep)
+    return best[1], best[2]
+
+
+def _normalised(pts: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """Pixels (x, y) -> normalised image coordinates under ``K`` (no distortion)."""
+    return cv2.undistortPoints(np.asarray(pts, np.float64)[:, None], K, None)[:, 0]
+
+
 def hole_support(hole: np.ndarray, pts: np.ndarray, radius_px: float) -> float:
     """Fraction of the hole's pixels within ``radius_px`` of one of ``pts`` (x, y): how much of the
     hole's surroundings the verified geometry is measured on."""
@@ -294,7 +330,10 @@ class _Ladder:
         _, first = np.unique(np.concatenate([mt, ms], axis=1), axis=0, return_index=True)
         first.sort()
         mt, ms = mt[first], ms[first]
-        F, keep = verify_fundamental(mt, ms, thr, cfg)
+        if rung == "learned" and self.K is not None:
+            F, keep = verify_essential(mt, ms, thr, self.K)
+        else:
+            F, keep = verify_fundamental(mt, ms, thr, cfg)
         tentative = (mt, ms)
         mt, ms = mt[keep], ms[keep]
         support = hole_support(self.hole, mt, cfg.hole_support_radius_px * self.scale)
@@ -388,14 +427,10 @@ def essential_support(
     and source intrinsics ``K``; 0 when none can be estimated."""
     K_t, K_s = K
     f = float(K_t[0, 0])
-
-    def normalised(pts: np.ndarray, K: np.ndarray) -> np.ndarray:
-        return cv2.undistortPoints(np.asarray(pts, np.float64)[:, None], K, None)[:, 0]
-
     try:
         E, _ = cv2.findEssentialMat(
-            normalised(pts_s, K_s),
-            normalised(pts_t, K_t),
+            _normalised(pts_s, K_s),
+            _normalised(pts_t, K_t),
             np.eye(3),
             cv2.USAC_MAGSAC,
             0.999,
@@ -407,7 +442,7 @@ def essential_support(
         return 0
     best = 0
     for k in range(0, E.shape[0], 3):  # the five-point solver can return several
-        d = sampson_px(E[k : k + 3], normalised(pool_t, K_t), normalised(pool_s, K_s)) * f
+        d = sampson_px(E[k : k + 3], _normalised(pool_t, K_t), _normalised(pool_s, K_s)) * f
         best = max(best, int((d < threshold_px).sum()))
     return best
 
