@@ -34,7 +34,7 @@ focal-length estimation (without K) both start from."""
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import cv2
@@ -267,6 +267,7 @@ class _Ladder:
         self.best: _Candidate | None = None
         self.candidates: list[_Candidate] = []
         self.learned_name = ""
+        self.suspicious = ""  # why SIFT's verified geometry is doubted ("" when it is not)
 
     def sift(self, n: int, max_side: int = 0) -> tuple[Features, Features]:
         key = f"sift{n}@{max_side}"
@@ -276,10 +277,13 @@ class _Ladder:
 
     def learned(self) -> tuple[Features, Features, np.ndarray] | str:
         """The learned matcher's matches as one-to-one keypoint sets (no descriptors), or why
-        there are none."""
+        there are none; with the re-check's keypoint budget when SIFT's geometry is suspicious."""
         from .learned import learned_matcher
 
-        matcher, why = learned_matcher(self.cfg)
+        cfg = self.cfg
+        if self.suspicious:
+            cfg = replace(cfg, learned_max_keypoints=cfg.learned_recheck_max_keypoints)
+        matcher, why = learned_matcher(cfg)
         if matcher is None:
             return why
         self.learned_name = why
@@ -358,6 +362,22 @@ class _Ladder:
         if self.best is None or _score(cand) > _score(self.best):
             self.best = cand
         return cand
+
+    def suspect(self, cand: _Candidate) -> str:
+        """Why the verified SIFT geometry ``cand`` is suspicious ("" when it is not, or when there
+        are no intrinsics to check it with): fewer than ``learned_suspicious_fraction`` of its
+        verified matches fit a calibrated geometry (:func:`verify_essential`)."""
+        least = self.cfg.learned_suspicious_fraction
+        if self.K is None or not least or not cand.report.verified:
+            return ""
+        _, fit = verify_essential(cand.pts_t, cand.pts_s, cand.threshold, self.K)
+        if fit.mean() >= least:
+            return ""
+        self.suspicious = (
+            f"{cand.report.rung} geometry suspicious: {fit.sum()} of its {len(fit)} verified matches fit an "
+            f"essential matrix (< {100 * least:.0f}%)"
+        )
+        return self.suspicious
 
     def choose(self) -> str:
         """Between rungs that both verified (SIFT and its learned cross-check), keep the geometry
@@ -499,8 +519,10 @@ def match_pair(
     for rung in RUNGS[: RUNGS.index(cfg.max_rung) + 1]:
         if rung == "learned" and cfg.learned == "off" and not cfg.learned_model:
             continue
-        # A verified geometry ends the climb; only the learned cross-check, when asked for, still runs.
-        if any(r.verified for r in reports) and not (rung == "learned" and cfg.learned_cross_check):
+        # A verified geometry ends the climb; only the learned cross-check, when asked for or when
+        # SIFT's geometry is suspicious, still runs.
+        recheck = rung == "learned" and (cfg.learned_cross_check or ladder.suspicious)
+        if any(r.verified for r in reports) and not recheck:
             break
         most = max((r.n_verified for r in reports), default=0)
         if rung not in EARLY_RUNGS and reports and most < cfg.unrelated_max_verified:
@@ -522,6 +544,8 @@ def match_pair(
         reports.append(cand.report)
         if not cand.report.verified:
             notes.append(f"rung {rung} weak: {cand.report.weak}")
+        elif rung == "sift" and (cfg.learned != "off" or cfg.learned_model) and ladder.suspect(cand):
+            notes.append(ladder.suspicious)
     choice = ladder.choose()
     best = ladder.best
     elapsed = time.perf_counter() - start
