@@ -278,8 +278,9 @@ class MatchingConfig:
     guided_ratio: Annotated[float, Range(0.0, 1.0)] = setting(0.8, _GUIDED_RUNG)
     learned: Literal["off", "auto", "on"] = setting(
         "auto",
-        "``learned`` rung, right after ``sift`` when SIFT's geometry is weak (and after a verified one with "
-        "``learned_cross_check``): a learned keypoint detector and matcher (``learned_matcher``). "
+        "``learned`` rung, right after ``sift`` when SIFT's geometry is weak (and after a verified one that "
+        "is suspicious, ``learned_suspicious_fraction``, or with ``learned_cross_check``): a learned "
+        "keypoint detector and matcher (``learned_matcher``). "
         "``auto``: when the ``learned`` extra is installed (for ``onnx``: when its graph resolves), "
         "else skipped and the report says why; ``on``: required, a one-line error naming the extra when "
         "it cannot be used; ``off``: never.",

@@ -11,10 +11,12 @@ by a robust estimator (OpenCV USAC MAGSAC++ by default). What every easy pair us
 
 ``learned`` (``matching.learned``: by default whenever the ``learned`` extra is installed):
 XFeat + LighterGlue (:mod:`geofill.match.xfeat`) or an ONNX matcher graph
-(:mod:`geofill.match.learned`), when SIFT's geometry is weak. With
-``matching.learned_cross_check`` it also runs after SIFT verified: repeated structure gives SIFT
-many verified but wrong matches (the fox's wallpaper: 86 verified, a 62-degree pose error); when
-both rungs verify, the geometry that more matches around the hole support is kept
+(:mod:`geofill.match.learned`), when SIFT's geometry is weak, and with more keypoints when it
+verified but is suspicious: repeated structure gives SIFT many verified but wrong matches (the
+fox's wallpaper: 77 verified, a 56-degree pose error), of which only about half fit any calibrated
+geometry (:meth:`_Ladder.suspect`; ``matching.learned_cross_check`` runs it after every verified
+SIFT). Its own matches are verified by an essential matrix, not F (:func:`verify_essential`).
+When both rungs verify, the geometry that more matches around the hole support is kept
 (:meth:`_Ladder.choose`), and the report says which and why.
 
 ``loose``: more SIFT keypoints and a looser ratio test (more true matches on wide baselines, and
