@@ -289,8 +289,9 @@ class MatchingConfig:
         False,
         "Run the ``learned`` rung also when SIFT's geometry verified, and keep whichever geometry more "
         "matches around the hole support (calibrated with the focal prior; the report says why). Off by "
-        "default: on the 23 DEV pairs it kept SIFT's geometry on every pair SIFT verified (same fills, mean "
-        "hole PSNR 16.28 dB either way) at 2.6-7.5 s more CPU per pair (benchmarks/quality/wide_results.py).",
+        "default: on the 23 DEV pairs it gave the same fills as the default ladder, which already re-checks "
+        "a suspicious SIFT geometry (mean hole PSNR 16.40 dB either way), at 0.8-5.9 CPU s more per pair "
+        "(median 1.1; benchmarks/quality/wide_results.py).",
     )
     learned_suspicious_fraction: Annotated[float, Range(0.0, 1.0)] = setting(
         0.7,
