@@ -199,10 +199,11 @@ def verify_essential(
     matches fit at one of ``FOCAL_SCALES`` times the prior (target, source) intrinsics ``K``, and
     its inlier mask (Sampson distance < ``threshold_px``); (None, all False) when none is found.
 
-    Used for the learned rung, whose matches on repeated texture (the fox's wallpaper) hold whole
-    clusters shifted by a period on one plane: those fit a fundamental matrix of the plane's family
-    as well as the true matches do (a 43-49 deg pose in a fill), while an essential matrix cannot
-    take that form. The focal length is scanned because the prior can be far off (no EXIF)."""
+    Used to doubt a verified SIFT geometry (:meth:`_Ladder.suspect`) and to verify the learned
+    rung's re-check of it: matches on repeated texture (the fox's wallpaper) hold whole clusters
+    shifted by a period on one plane, which fit a fundamental matrix of the plane's family as well
+    as the true matches do (a 43-49 deg pose in a fill), while an essential matrix cannot take
+    that form. The focal length is scanned because the prior can be far off (no EXIF)."""
     best: tuple[int, np.ndarray | None, np.ndarray] = (0, None, np.zeros(len(pts_t), dtype=bool))
     if len(pts_t) < MIN_MATCHES_FOR_F:
         return best[1], best[2]
