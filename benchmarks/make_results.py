@@ -190,8 +190,9 @@ SECTIONS = [
         "learned_speed",
         "The learned rung's cost against the SIFT rung (`benchmarks/speed/learned_rung.py`)",
         "The 5 `dev_wide_*` pairs at the working size, hole blanked: the `sift` rung, the learned matcher "
-        "on a new target and on a target already seen (another reference of the same fill), alternated, "
-        "medians of 3; wall and process CPU seconds, `uptime` before and after.",
+        "at 2048 keypoints (the rung after a weak SIFT) and at 4096 (its re-check of a suspicious SIFT "
+        "geometry), each on a new target and on a target already seen (another reference of the same "
+        "fill), alternated, medians of 3; wall and process CPU seconds, `uptime` before and after.",
         [PY, "benchmarks/speed/learned_rung.py"],
     ),
     Section(

@@ -23,7 +23,7 @@ from geofill.match.features import (
     mutual_ratio_matches,
     to_gray_u8,
 )
-from geofill.match.ladder import hole_support, verify_fundamental
+from geofill.match.ladder import hole_support, sampson_px, verify_essential, verify_fundamental
 from geofill.synthetic import SyntheticPair, make_pair
 
 SCALE = 320 / 1280
@@ -270,3 +270,35 @@ def test_memory_freed_in_worker_threads_goes_back_to_the_system() -> None:
     # Measured: base 73 MB, held 241-298 MB (how many arenas the threads used varies run to run),
     # after 73-129 MB; without the release it stays at held. At least half of it must come back.
     assert held - base > 100 and after < held - 0.5 * (held - base)
+
+
+def test_essential_verification_rejects_matches_a_period_apart_on_a_wallpaper() -> None:
+    """A wall with repeated texture seen from two cameras 30 degrees apart: 60 true matches on the
+    wall, 25 on an object before it, and 60 wall matches one period (0.5 m) off. The shifted ones
+    fit a fundamental matrix of the wall's family together with the true wall matches, so F keeps
+    them; an essential matrix (focal prior 20% off, scanned) keeps the true matches only."""
+    rng = np.random.default_rng(0)
+    K = np.array([[800.0, 0, 320], [0, 800, 240], [0, 0, 1]])
+    a = np.deg2rad(30)
+    R = np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
+    t = np.array([-2.0, 0.0, 0.5])
+
+    def project(P: np.ndarray, moved: bool = False) -> np.ndarray:
+        q = ((P @ R.T + t) if moved else P) @ K.T
+        return q[:, :2] / q[:, 2:]
+
+    wall = np.c_[rng.uniform(-1.5, 1.5, (60, 2)), np.full(60, 4.0)]
+    thing = np.c_[rng.uniform(-0.6, 0.6, (25, 2)), rng.uniform(2.0, 3.0, 25)]
+    repeat = np.c_[rng.uniform(-1.5, 1.5, (60, 2)), np.full(60, 4.0)]
+    pts_s = np.concatenate([project(wall), project(thing), project(repeat)])
+    pts_t = np.concatenate([project(wall, True), project(thing, True), project(repeat + [0.5, 0, 0], True)])
+    pts_t += rng.normal(0, 0.3, pts_t.shape)
+    true = np.r_[np.ones(85, bool), np.zeros(60, bool)]
+    _, by_f = verify_fundamental(pts_t, pts_s, 1.0, MatchingConfig())
+    assert by_f[~true].sum() >= 55  # the failure: the wrong plane-family geometry
+    prior = K.copy()
+    prior[:2, :2] *= 0.8
+    F, by_e = verify_essential(pts_t, pts_s, 1.0, (prior, prior))
+    assert by_e[true].sum() >= 0.85 * true.sum() and by_e[~true].sum() <= 0.25 * (~true).sum()
+    # The returned F is the calibrated geometry's: the true matches lie on its epipolar lines.
+    assert np.median(sampson_px(F, pts_t[true], pts_s[true])) < 1.0

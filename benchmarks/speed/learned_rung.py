@@ -4,9 +4,11 @@ SIFT rung, per wide DEV pair at the working size (1280-px long side), the hole b
     .venv/bin/python benchmarks/speed/learned_rung.py [--pairs DIR ...] [--repeats 3]
 
 Per pair, alternated in the same process (``--repeats`` rounds, medians): the ``sift`` rung
-(``matching.max_rung=sift``: SIFT on both images, matching, F verification), the learned matcher
-on a new target (features of both images + LighterGlue) and on a target already seen (another
-reference of the same fill: the target's features are reused). Wall seconds and the process's CPU
+(``matching.max_rung=sift``: SIFT on both images, matching, F verification), and for each keypoint
+budget (default: ``matching.learned_max_keypoints``, the rung after a weak SIFT, and
+``matching.learned_recheck_max_keypoints``, its re-check of a suspicious SIFT geometry) the learned
+matcher on a new target (features of both images + LighterGlue) and on a target already seen
+(another reference of the same fill: the target's features are reused). Wall seconds and the process's CPU
 seconds (all threads; torch runs ``torch.get_num_threads()`` of them): on a shared machine the wall
 time includes waiting for other processes, the CPU time does not. ``uptime`` before and after.
 The weights are loaded once before the rounds (printed). Figures, not a test.
@@ -50,6 +52,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--pairs", action="append", help="pair folder(s) (default: the wide DEV pairs)")
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--keypoints", type=int, nargs="+", help="XFeat keypoint budgets (default: both)")
     args = ap.parse_args(argv)
     if missing_modules():
         print(f"the learned extra is not installed: {INSTALL}")
@@ -62,22 +65,18 @@ def main(argv: list[str] | None = None) -> int:
     cfg = FillConfig()
     mc = cfg.matching
     sift_only = dataclasses.replace(mc, max_rung="sift", learned="off")
-    w, c = time.perf_counter(), time.process_time()
-    matcher = xfeat_matcher(mc.learned_max_keypoints, mc.learned_max_side)
-    print(
-        f"loaded {matcher.describe} in {time.perf_counter() - w:.2f} s ({time.process_time() - c:.2f} s CPU)"
-    )
+    budgets = args.keypoints or [mc.learned_max_keypoints, mc.learned_recheck_max_keypoints]
+    matchers = {}
+    for kp in budgets:
+        w, c = time.perf_counter(), time.process_time()
+        matchers[kp] = xfeat_matcher(kp, mc.learned_max_side)
+        print(
+            f"loaded {matchers[kp].describe} in {time.perf_counter() - w:.2f} s "
+            f"({time.process_time() - c:.2f} s CPU)"
+        )
     print(f"torch threads {torch.get_num_threads()}; load: {_uptime()}")
-    head = (
-        "size",
-        "sift_wall",
-        "sift_cpu",
-        "learned_wall",
-        "learned_cpu",
-        "warm_wall",
-        "warm_cpu",
-        "matches",
-    )
+    keys = ["sift"] + [f"{k}{kp}" for kp in budgets for k in ("new", "seen")]
+    head = ["size"] + [f"{k}_{x}" for k in keys for x in ("wall", "cpu")] + [f"matches{kp}" for kp in budgets]
     print(f"{'pair':<38s} " + " ".join(f"{h:>12s}" for h in head))
     rows = []
     for pair in pairs:
@@ -87,29 +86,30 @@ def main(argv: list[str] | None = None) -> int:
         v = prepare_views(target, hole, pair.source, cfg, None, None)
         gray_t, gray_s = to_gray_u8(v.target_gray), to_gray_u8(v.source_gray)
         mask = keypoint_mask(v.hole, mc.hole_margin_px * v.px_scale)
-        times: dict[str, list[tuple[float, float]]] = {"sift": [], "cold": [], "warm": []}
-        found = 0
+        times: dict[str, list[tuple[float, float]]] = {k: [] for k in keys}
+        found = {}
         for _ in range(args.repeats):
             _, *t = _timed(match_pair, v.target_gray, v.source_gray, v.hole, sift_only, v.px_scale)
             times["sift"].append(tuple(t))
-            matcher._targets.clear()
-            _, *t = _timed(matcher, gray_t, gray_s, mask)
-            times["cold"].append(tuple(t))
-            out, *t = _timed(matcher, gray_t, gray_s, mask)
-            times["warm"].append(tuple(t))
-            found = len(out[0])
+            for kp, matcher in matchers.items():
+                matcher._targets.clear()
+                _, *t = _timed(matcher, gray_t, gray_s, mask)
+                times[f"new{kp}"].append(tuple(t))
+                out, *t = _timed(matcher, gray_t, gray_s, mask)
+                times[f"seen{kp}"].append(tuple(t))
+                found[kp] = len(out[0])
         med = {
             k: (statistics.median(x[0] for x in ts), statistics.median(x[1] for x in ts))
             for k, ts in times.items()
         }
         rows.append(med)
-        size = f"{gray_t.shape[1]}x{gray_t.shape[0]}"
-        cells = [f"{x:.2f}" for k in ("sift", "cold", "warm") for x in med[k]]
-        print(
-            f"{pair.id[:38]:<38s} {size:>12s} " + " ".join(f"{x:>12s}" for x in cells) + f" {found:>12d}",
-            flush=True,
-        )
-    for k, name in (("sift", "sift rung"), ("cold", "learned, new target"), ("warm", "learned, target seen")):
+        cells = [f"{gray_t.shape[1]}x{gray_t.shape[0]}"] + [f"{x:.2f}" for k in keys for x in med[k]]
+        cells += [str(found[kp]) for kp in budgets]
+        print(f"{pair.id[:38]:<38s} " + " ".join(f"{x:>12s}" for x in cells), flush=True)
+    names = {"sift": "sift rung"}
+    for kp in budgets:
+        names |= {f"new{kp}": f"learned {kp} kp, new target", f"seen{kp}": f"learned {kp} kp, target seen"}
+    for k, name in names.items():
         print(
             f"{name}: median wall {statistics.median(r[k][0] for r in rows):.2f} s, "
             f"CPU {statistics.median(r[k][1] for r in rows):.2f} s"

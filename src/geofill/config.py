@@ -278,8 +278,9 @@ class MatchingConfig:
     guided_ratio: Annotated[float, Range(0.0, 1.0)] = setting(0.8, _GUIDED_RUNG)
     learned: Literal["off", "auto", "on"] = setting(
         "auto",
-        "``learned`` rung, right after ``sift`` when SIFT's geometry is weak (and after a verified one with "
-        "``learned_cross_check``): a learned keypoint detector and matcher (``learned_matcher``). "
+        "``learned`` rung, right after ``sift`` when SIFT's geometry is weak (and after a verified one that "
+        "is suspicious, ``learned_suspicious_fraction``, or with ``learned_cross_check``): a learned "
+        "keypoint detector and matcher (``learned_matcher``). "
         "``auto``: when the ``learned`` extra is installed (for ``onnx``: when its graph resolves), "
         "else skipped and the report says why; ``on``: required, a one-line error naming the extra when "
         "it cannot be used; ``off``: never.",
@@ -288,8 +289,25 @@ class MatchingConfig:
         False,
         "Run the ``learned`` rung also when SIFT's geometry verified, and keep whichever geometry more "
         "matches around the hole support (calibrated with the focal prior; the report says why). Off by "
-        "default: on the 23 DEV pairs it kept SIFT's geometry on every pair SIFT verified (same fills, mean "
-        "hole PSNR 16.28 dB either way) at 2.6-7.5 s more CPU per pair (benchmarks/quality/wide_results.py).",
+        "default: on the 23 DEV pairs it gave the same fills as the default ladder, which already re-checks "
+        "a suspicious SIFT geometry (mean hole PSNR 16.40 dB either way), at 0.8-5.9 CPU s more per pair "
+        "(median 1.1; benchmarks/quality/wide_results.py).",
+    )
+    learned_suspicious_fraction: Annotated[float, Range(0.0, 1.0)] = setting(
+        0.7,
+        "SIFT's verified geometry is suspicious when fewer than this fraction of its verified matches fit an "
+        "essential matrix at the focal prior times 0.6-1.7 (repeated texture: matches whole periods apart "
+        "fit a wrong fundamental matrix); the ``learned`` rung then re-checks it with "
+        "``learned_recheck_max_keypoints`` and the better-supported geometry is kept (0: never). Measured "
+        "on the 23 DEV pairs with the hole blanked: 0.49 on the fox's wallpaper pair (55.8 deg pose error), "
+        "0.84-1.00 on the 21 others where SIFT verifies.",
+    )
+    learned_recheck_max_keypoints: Annotated[int, Range(16, 100_000)] = setting(
+        4096,
+        "``xfeat-lighterglue``: XFeat keypoints per image when the learned rung re-checks a suspicious SIFT "
+        "geometry. On the fox pair in a fill (hole blanked) 2048 did not recover the geometry even with the "
+        "true focal (61 deg), 4096 did (0.65 deg with the true focal, 9.9 deg with the default prior), at "
+        "about 6 CPU s instead of 3 (benchmarks/studies/learned_plane_twins.py).",
     )
     learned_matcher: Literal["xfeat-lighterglue", "onnx"] = setting(
         "xfeat-lighterglue",

@@ -11,10 +11,12 @@ by a robust estimator (OpenCV USAC MAGSAC++ by default). What every easy pair us
 
 ``learned`` (``matching.learned``: by default whenever the ``learned`` extra is installed):
 XFeat + LighterGlue (:mod:`geofill.match.xfeat`) or an ONNX matcher graph
-(:mod:`geofill.match.learned`), when SIFT's geometry is weak. With
-``matching.learned_cross_check`` it also runs after SIFT verified: repeated structure gives SIFT
-many verified but wrong matches (the fox's wallpaper: 86 verified, a 62-degree pose error); when
-both rungs verify, the geometry that more matches around the hole support is kept
+(:mod:`geofill.match.learned`), when SIFT's geometry is weak, and with more keypoints when it
+verified but is suspicious: repeated structure gives SIFT many verified but wrong matches (the
+fox's wallpaper: 77 verified, a 56-degree pose error), of which only about half fit any calibrated
+geometry (:meth:`_Ladder.suspect`; ``matching.learned_cross_check`` runs it after every verified
+SIFT). Its matches then are verified by an essential matrix, not F (:func:`verify_essential`).
+When both rungs verify, the geometry that more matches around the hole support is kept
 (:meth:`_Ladder.choose`), and the report says which and why.
 
 ``loose``: more SIFT keypoints and a looser ratio test (more true matches on wide baselines, and
@@ -34,7 +36,7 @@ focal-length estimation (without K) both start from."""
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import cv2
@@ -190,6 +192,43 @@ def verify_fundamental(
     return F, inl.ravel().astype(bool)
 
 
+def verify_essential(
+    pts_t: np.ndarray, pts_s: np.ndarray, threshold_px: float, K: tuple[np.ndarray, np.ndarray]
+) -> tuple[np.ndarray | None, np.ndarray]:
+    """The fundamental matrix of the calibrated geometry (MAGSAC++ essential matrix) that most
+    matches fit at one of ``FOCAL_SCALES`` times the prior (target, source) intrinsics ``K``, and
+    its inlier mask (Sampson distance < ``threshold_px``); (None, all False) when none is found.
+
+    Used to doubt a verified SIFT geometry (:meth:`_Ladder.suspect`) and to verify the learned
+    rung's re-check of it: matches on repeated texture (the fox's wallpaper) hold whole clusters
+    shifted by a period on one plane, which fit a fundamental matrix of the plane's family as well
+    as the true matches do (a 43-49 deg pose in a fill), while an essential matrix cannot take
+    that form. The focal length is scanned because the prior can be far off (no EXIF)."""
+    best: tuple[int, np.ndarray | None, np.ndarray] = (0, None, np.zeros(len(pts_t), dtype=bool))
+    if len(pts_t) < MIN_MATCHES_FOR_F:
+        return best[1], best[2]
+    for scale in FOCAL_SCALES:
+        K_t, K_s = _focal_scaled(K, scale)
+        nt, ns = _normalised(pts_t, K_t), _normalised(pts_s, K_s)
+        try:
+            E, _ = cv2.findEssentialMat(ns, nt, np.eye(3), cv2.USAC_MAGSAC, 0.999, threshold_px / K_t[0, 0])
+        except cv2.error:
+            continue
+        if E is None:
+            continue
+        for k in range(0, E.shape[0], 3):  # the five-point solver can return several
+            keep = sampson_px(E[k : k + 3], nt, ns) * K_t[0, 0] < threshold_px
+            if keep.sum() > best[0]:
+                F = np.linalg.inv(K_t).T @ E[k : k + 3] @ np.linalg.inv(K_s)
+                best = (int(keep.sum()), F / np.linalg.norm(F), keep)
+    return best[1], best[2]
+
+
+def _normalised(pts: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """Pixels (x, y) -> normalised image coordinates under ``K`` (no distortion)."""
+    return cv2.undistortPoints(np.asarray(pts, np.float64)[:, None], K, None)[:, 0]
+
+
 def hole_support(hole: np.ndarray, pts: np.ndarray, radius_px: float) -> float:
     """Fraction of the hole's pixels within ``radius_px`` of one of ``pts`` (x, y): how much of the
     hole's surroundings the verified geometry is measured on."""
@@ -231,6 +270,7 @@ class _Ladder:
         self.best: _Candidate | None = None
         self.candidates: list[_Candidate] = []
         self.learned_name = ""
+        self.suspicious = ""  # why SIFT's verified geometry is doubted ("" when it is not)
 
     def sift(self, n: int, max_side: int = 0) -> tuple[Features, Features]:
         key = f"sift{n}@{max_side}"
@@ -240,10 +280,13 @@ class _Ladder:
 
     def learned(self) -> tuple[Features, Features, np.ndarray] | str:
         """The learned matcher's matches as one-to-one keypoint sets (no descriptors), or why
-        there are none."""
+        there are none; with the re-check's keypoint budget when SIFT's geometry is suspicious."""
         from .learned import learned_matcher
 
-        matcher, why = learned_matcher(self.cfg)
+        cfg = self.cfg
+        if self.suspicious:
+            cfg = replace(cfg, learned_max_keypoints=cfg.learned_recheck_max_keypoints)
+        matcher, why = learned_matcher(cfg)
         if matcher is None:
             return why
         self.learned_name = why
@@ -294,7 +337,12 @@ class _Ladder:
         _, first = np.unique(np.concatenate([mt, ms], axis=1), axis=0, return_index=True)
         first.sort()
         mt, ms = mt[first], ms[first]
-        F, keep = verify_fundamental(mt, ms, thr, cfg)
+        if rung == "learned" and self.suspicious:
+            # The re-check of a wallpaper-like SIFT geometry: F would keep the same plane family.
+            # (After a weak SIFT, F is kept: on slambook f1->f2 E gave 1.98 deg against F's 1.50.)
+            F, keep = verify_essential(mt, ms, thr, self.K)
+        else:
+            F, keep = verify_fundamental(mt, ms, thr, cfg)
         tentative = (mt, ms)
         mt, ms = mt[keep], ms[keep]
         support = hole_support(self.hole, mt, cfg.hole_support_radius_px * self.scale)
@@ -319,6 +367,22 @@ class _Ladder:
         if self.best is None or _score(cand) > _score(self.best):
             self.best = cand
         return cand
+
+    def suspect(self, cand: _Candidate) -> str:
+        """Why the verified SIFT geometry ``cand`` is suspicious ("" when it is not, or when there
+        are no intrinsics to check it with): fewer than ``learned_suspicious_fraction`` of its
+        verified matches fit a calibrated geometry (:func:`verify_essential`)."""
+        least = self.cfg.learned_suspicious_fraction
+        if self.K is None or not least or not cand.report.verified:
+            return ""
+        _, fit = verify_essential(cand.pts_t, cand.pts_s, cand.threshold, self.K)
+        if fit.mean() >= least:
+            return ""
+        self.suspicious = (
+            f"{cand.report.rung} geometry suspicious: {fit.sum()} of its {len(fit)} verified matches fit an "
+            f"essential matrix (< {100 * least:.0f}%)"
+        )
+        return self.suspicious
 
     def choose(self) -> str:
         """Between rungs that both verified (SIFT and its learned cross-check), keep the geometry
@@ -388,14 +452,10 @@ def essential_support(
     and source intrinsics ``K``; 0 when none can be estimated."""
     K_t, K_s = K
     f = float(K_t[0, 0])
-
-    def normalised(pts: np.ndarray, K: np.ndarray) -> np.ndarray:
-        return cv2.undistortPoints(np.asarray(pts, np.float64)[:, None], K, None)[:, 0]
-
     try:
         E, _ = cv2.findEssentialMat(
-            normalised(pts_s, K_s),
-            normalised(pts_t, K_t),
+            _normalised(pts_s, K_s),
+            _normalised(pts_t, K_t),
             np.eye(3),
             cv2.USAC_MAGSAC,
             0.999,
@@ -407,7 +467,7 @@ def essential_support(
         return 0
     best = 0
     for k in range(0, E.shape[0], 3):  # the five-point solver can return several
-        d = sampson_px(E[k : k + 3], normalised(pool_t, K_t), normalised(pool_s, K_s)) * f
+        d = sampson_px(E[k : k + 3], _normalised(pool_t, K_t), _normalised(pool_s, K_s)) * f
         best = max(best, int((d < threshold_px).sum()))
     return best
 
@@ -464,8 +524,10 @@ def match_pair(
     for rung in RUNGS[: RUNGS.index(cfg.max_rung) + 1]:
         if rung == "learned" and cfg.learned == "off" and not cfg.learned_model:
             continue
-        # A verified geometry ends the climb; only the learned cross-check, when asked for, still runs.
-        if any(r.verified for r in reports) and not (rung == "learned" and cfg.learned_cross_check):
+        # A verified geometry ends the climb; only the learned cross-check, when asked for or when
+        # SIFT's geometry is suspicious, still runs.
+        recheck = rung == "learned" and (cfg.learned_cross_check or ladder.suspicious)
+        if any(r.verified for r in reports) and not recheck:
             break
         most = max((r.n_verified for r in reports), default=0)
         if rung not in EARLY_RUNGS and reports and most < cfg.unrelated_max_verified:
@@ -487,6 +549,8 @@ def match_pair(
         reports.append(cand.report)
         if not cand.report.verified:
             notes.append(f"rung {rung} weak: {cand.report.weak}")
+        elif rung == "sift" and (cfg.learned != "off" or cfg.learned_model) and ladder.suspect(cand):
+            notes.append(ladder.suspicious)
     choice = ladder.choose()
     best = ladder.best
     elapsed = time.perf_counter() - start
