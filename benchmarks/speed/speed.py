@@ -85,7 +85,13 @@ def _child(folder: Path, overrides: list[str], warm: bool) -> None:
 
 
 def write_pair_files(folder: Path, target: np.ndarray, source: np.ndarray, hole: np.ndarray) -> None:
-    """target.png, source.png (RGB in) and mask.png (255 = hole) in ``folder``, as a user would pass them."""
+    """target.png, source.png (RGB in) and mask.png (255 = hole) in ``folder``, the target's hole
+    blanked: the reference fill is what is timed. A hole showing the true background would be an
+    object the references show again, refused and painted (another job, and not what older trees
+    did with the same files)."""
+    from geofill.synthetic import blanked
+
+    target = blanked(target, hole)
     cv2.imwrite(str(folder / "target.png"), cv2.cvtColor(target, cv2.COLOR_RGB2BGR))
     cv2.imwrite(str(folder / "source.png"), cv2.cvtColor(source, cv2.COLOR_RGB2BGR))
     cv2.imwrite(str(folder / "mask.png"), hole.astype(np.uint8) * 255)
