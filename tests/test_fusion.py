@@ -11,8 +11,9 @@ import pytest
 
 from geofill.composite.inpaint import mask_window
 from geofill.config import FillConfig
-from geofill.fuse import Fusion, _known_ring, fuse_references, gaussian_blur
+from geofill.fuse import Fusion, fuse_references, gaussian_blur
 from geofill.render import RenderResult
+from geofill.utils.distance import known_ring
 
 
 def _single_reference(index: int = 2):
@@ -68,11 +69,11 @@ def test_known_ring_of_a_window_holding_the_hole_equals_the_whole_image():
     hole = np.zeros((200, 300), bool)
     hole[50:120, 80:200] = True
     hole[130:135, 60:70] = True
-    whole = _known_ring(hole, 16.0)
+    whole = known_ring(hole, 16.0)
     assert whole.sum() > 0 and not (whole & hole).any()
     for margin in (0, 24):  # the bare bounding box, and one the whole ring fits in
         rows, cols = mask_window(hole, margin)
-        np.testing.assert_array_equal(_known_ring(hole[rows, cols], 16.0), whole[rows, cols])
+        np.testing.assert_array_equal(known_ring(hole[rows, cols], 16.0), whole[rows, cols])
 
 
 @pytest.mark.parametrize("sigma", [3.0, 48.0])  # the direct filter, and the Fourier-domain one

@@ -33,6 +33,7 @@ import numpy as np
 
 from .composite.inpaint import mask_window
 from .config import FillConfig, FusionConfig
+from .utils.distance import known_ring
 from .utils.resolution import config_px
 
 if TYPE_CHECKING:
@@ -107,7 +108,7 @@ def fuse_references(
     hole_w = hole[rows, cols]
     alphas = np.stack([r.screened.alpha[rows, cols] for r in refs])
     images = np.stack([r.screened.image[rows, cols] for r in refs]).astype(np.float32)
-    ring = _known_ring(hole_w, config_px(cfg.refine.band_px, hole.shape))
+    ring = known_ring(hole_w, config_px(cfg.refine.band_px, hole.shape))
     scores = np.stack(
         [
             reference_score(r, images[k], target[rows, cols], ring, rows, cols, hole.shape, fc)
@@ -167,13 +168,6 @@ def reference_score(
     s = 0.5 ** (error / cfg.band_error_scale) * edge_w * np.sqrt(np.clip(area, 0.0, 1.0))
     s *= 0.5 ** (angle / cfg.angle_scale_deg)
     return np.where(a, s, 0.0).astype(np.float32)
-
-
-def _known_ring(hole: np.ndarray, width_px: float) -> np.ndarray:
-    """Known pixels within ``width_px`` of the hole (the same in any window holding the hole: the
-    two-pass chamfer distance to a pixel is reached by a path inside their bounding box)."""
-    dist = cv2.distanceTransform((~hole).astype(np.uint8), cv2.DIST_L2, 3)
-    return ~hole & (dist <= max(width_px, 1.0))
 
 
 def _ring_error(

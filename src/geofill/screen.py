@@ -41,6 +41,7 @@ from .pose import PoseEstimate
 from .prepare import WorkingViews
 from .refine import RefinedRender
 from .render import RenderResult
+from .utils.distance import known_ring
 from .utils.resolution import config_px, resize_long
 from .utils.rotations import skew
 
@@ -229,8 +230,7 @@ def _strangers(
     render: np.ndarray, target: np.ndarray, hole: np.ndarray, alpha: np.ndarray, px: float, sc: ScreenConfig
 ) -> np.ndarray:
     """:func:`strangers` at the resolution given, ``px`` pixels per config pixel."""
-    outside = cv2.distanceTransform((~hole).astype(np.uint8), cv2.DIST_L2, 3)
-    ring = alpha & ~hole & (outside <= sc.stranger_ring_px * px)
+    ring = alpha & known_ring(hole, sc.stranger_ring_px * px)
     if not ring.any():
         return np.zeros(hole.shape, bool)
     k = _odd(5.0 * px)

@@ -17,9 +17,17 @@ SciPy's bit for bit (tested); the square root is taken once, in float64, as SciP
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
 from .jit import njit_cached
+
+
+def known_ring(hole: np.ndarray, width_px: float) -> np.ndarray:
+    """Known pixels within ``width_px`` of the hole (the same in any window holding the hole: the
+    two-pass chamfer distance to a pixel is reached by a path inside their bounding box)."""
+    dist = cv2.distanceTransform((~hole).astype(np.uint8), cv2.DIST_L2, 3)
+    return ~hole & (dist <= max(width_px, 1.0))
 
 
 def distance_to(mask: np.ndarray) -> np.ndarray:
