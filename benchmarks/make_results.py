@@ -149,6 +149,13 @@ SECTIONS = [
         [PY, "benchmarks/speed/multiref.py"],
     ),
     Section(
+        "multiref_process",
+        "One reference against all, whole process, real sets (`benchmarks/speed/multiref_process.py`)",
+        "Four DEV multi-reference sets, `geofill fill` from the primary reference alone and from every "
+        "reference, alternated; the median of the per-run ratios (the limit for four references: 2.5x).",
+        [PY, "benchmarks/speed/multiref_process.py"],
+    ),
+    Section(
         "sweep",
         "Hole-size study (`geofill eval --sweep hole-size`)",
         "The same hole shapes drawn with mean brush widths 90 to 210 px at 720p (the paper's Fig. 5).",
