@@ -322,6 +322,12 @@ class MatchingConfig:
         "(49 deg rotation error with the true K, hole not blanked; 2048: 1.2 deg); LighterGlue's cost grows "
         "with their product.",
     )
+    learned_threads: Annotated[int, Range(0, 256)] = setting(
+        1,
+        "``xfeat-lighterglue``: torch threads the learned matcher runs with (0: torch's default, one per "
+        "core). One: on a 2-core machine shared with other processes, two threads that wait for each "
+        "other cost about 5x the CPU and wall time (benchmarks/speed/learned_rung.py).",
+    )
     learned_model: str | None = setting(
         None,
         "Explicit matcher ONNX file (``learned_matcher = onnx``); wins over the environment variable and the "

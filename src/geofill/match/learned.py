@@ -117,7 +117,7 @@ def learned_matcher(cfg: MatchingConfig) -> tuple[Callable | None, str]:
             require_extra()
         return None, f"the learned matcher needs the 'learned' extra (not installed: {', '.join(missing)})"
     try:
-        matcher = xfeat_matcher(cfg.learned_max_keypoints, cfg.learned_max_side)
+        matcher = xfeat_matcher(cfg.learned_max_keypoints, cfg.learned_max_side, cfg.learned_threads)
     except MatcherModelError as exc:
         if required:
             raise
