@@ -12,7 +12,7 @@ plane (true intrinsics) and of a second plane fitted to its outliers. Figures, n
         [--pair DIR] [--budgets 2048@1024 4096@1024/0.95 ...]
 
 A budget is KEYPOINTS@LONG_SIDE, optionally /CONFIDENCE (LightGlue's early exit and pruning;
-default 0.9).
+default 0.95).
 """
 
 from __future__ import annotations
@@ -89,7 +89,7 @@ def main(argv: list[str] | None = None) -> int:
     for budget in args.budgets:
         size, _, conf = budget.partition("/")
         kp, side = (int(x) for x in size.split("@"))
-        matcher = XFeatLighterGlue(kp, side, confidence=float(conf or 0.9))
+        matcher = XFeatLighterGlue(kp, side, confidence=float(conf or 0.95))
         matcher(views.target_gray, views.source_gray, mask)  # load and warm up
         matcher._targets.clear()  # time a new target
         t0, c0 = time.perf_counter(), time.process_time()

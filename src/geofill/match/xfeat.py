@@ -148,7 +148,7 @@ class XFeatLighterGlue:
         max_keypoints: int,
         max_side: int,
         threads: int = 1,
-        confidence: float = 0.9,
+        confidence: float = 0.95,
         fused_attention: bool = True,
     ):
         if missing_modules():
@@ -272,7 +272,7 @@ _MATCHERS_LOCK = threading.Lock()
 
 
 def xfeat_matcher(
-    max_keypoints: int, max_side: int, threads: int = 1, confidence: float = 0.9
+    max_keypoints: int, max_side: int, threads: int = 1, confidence: float = 0.95
 ) -> XFeatLighterGlue:
     """The loaded matcher for these settings (loading takes a fraction of a second, once)."""
     with _MATCHERS_LOCK:
