@@ -16,7 +16,8 @@ focal it can, for contrast):
 2. The fill's verified matches (the evaluation's seed-0 hole blanked, the fill's ladder and focal
    prior): per scale of the prior focal on the focal stage's grid, the search's robust Sampson cost
    (:func:`geofill.focal.search_focal`), its inliers, and the rotation error against the ground
-   truth of the pose of the essential matrix fitted at that focal; then the search's answer.
+   truth of the pose of the essential matrix fitted at that focal; then the search's answer and
+   Bougnoux's closed form (:func:`geofill.focal.bougnoux_candidate`).
 3. Ideal matches: the verified matches triangulated with the true K and pose and projected back,
    with Gaussian noise of ``--noise-px`` (the same points, the same motion, no matching error, no
    lens distortion); the same profile and answer.
@@ -38,7 +39,7 @@ import numpy as np
 from geofill.camera import Intrinsics, pose_errors_deg
 from geofill.config import FillConfig
 from geofill.evaluation.pairs import load_pair, pair_mask
-from geofill.focal import prior_sigma, search_focal
+from geofill.focal import bougnoux_candidate, prior_sigma, search_focal
 from geofill.pipeline import ReferenceArtifacts, prepare_fill, run_reference
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root: benchmarks.common
@@ -101,6 +102,13 @@ def _profile(name, matches, K_t, K_s, true_scale, T_gt, cfg, thr) -> None:
             if cand.ok
             else f"not used: {cand.reason}"
         ),
+    )
+    bg = bougnoux_candidate(matches, K_t, K_s, (True, True), sigma, cfg.intrinsics)
+    print(
+        f"    Bougnoux: x{bg.scale:.3f}"
+        + (f" +-{100 * bg.rel_uncertainty:.0f}%" if bg.ok else f" not used: {bg.reason}")
+        if bg.scale is not None
+        else f"    Bougnoux: not used: {bg.reason}",
         flush=True,
     )
 
