@@ -307,7 +307,8 @@ class MatchingConfig:
         "``xfeat-lighterglue``: XFeat keypoints per image when the learned rung re-checks a suspicious SIFT "
         "geometry. On the fox pair in a fill (hole blanked) 2048 did not recover the geometry even with the "
         "true focal (61 deg), 4096 did (0.65 deg with the true focal, 9.9 deg with the default prior), at "
-        "about 6 CPU s instead of 3 (benchmarks/studies/learned_plane_twins.py).",
+        "1.2-2.8 CPU s per wide pair instead of 0.6-1.1 (benchmarks/studies/learned_plane_twins.py, "
+        "benchmarks/speed/learned_rung.py).",
     )
     learned_matcher: Literal["xfeat-lighterglue", "onnx"] = setting(
         "xfeat-lighterglue",
