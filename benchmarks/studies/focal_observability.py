@@ -21,6 +21,11 @@ focal it can, for contrast):
 3. Ideal matches: the verified matches triangulated with the true K and pose and projected back,
    with Gaussian noise of ``--noise-px`` (the same points, the same motion, no matching error, no
    lens distortion); the same profile and answer.
+4. Where meta.json gives the lens distortion (``dist_coeffs_opencv``): the fill's matches and
+   XFeat + LighterGlue's at costlier ``--budgets`` (KEYPOINTS@LONG_SIDE, essential-verified as the
+   ladder's re-check does), as they are and undistorted with the true coefficients (which a fill
+   without calibration does not know; the learned matches are verified after undistortion, the
+   fill's as they were selected); the same profile and answer.
 
 A profile that is flat (the cost within a few percent of its minimum) over a range of focal lengths
 says the pair cannot tell them apart. Figures, not a test.
@@ -40,6 +45,9 @@ from geofill.camera import Intrinsics, pose_errors_deg
 from geofill.config import FillConfig
 from geofill.evaluation.pairs import load_pair, pair_mask
 from geofill.focal import bougnoux_candidate, prior_sigma, search_focal
+from geofill.match.features import keypoint_mask, to_gray_u8
+from geofill.match.ladder import verify_essential
+from geofill.match.xfeat import XFeatLighterGlue
 from geofill.pipeline import ReferenceArtifacts, prepare_fill, run_reference
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root: benchmarks.common
@@ -117,6 +125,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--pair", action="append", help="pair folder(s) (default: see the docstring)")
     ap.add_argument("--noise-px", type=float, nargs="+", default=[0.0, 0.5])
+    ap.add_argument("--budgets", nargs="*", default=["8192@1280"], help="learned budgets of part 4")
     args = ap.parse_args(argv)
     cfg = FillConfig()
     rng = np.random.default_rng(0)
@@ -158,6 +167,35 @@ def main(argv: list[str] | None = None) -> int:
             F, _ = cv2.findFundamentalMat(ps, pt, cv2.FM_8POINT)
             ideal = replace(m, pts_target=pt, pts_source=ps, F=F)
             _profile(f"ideal matches, noise {noise:g} px", ideal, K_t, K_s, true_scale, T_gt, cfg, thr)
+        if "dist_coeffs_opencv" not in meta:
+            continue
+        dist = np.array(meta["dist_coeffs_opencv"], np.float64)
+
+        def undistorted(pt, ps, K=(true_t.K, true_s.K), dist=dist):
+            return tuple(
+                cv2.undistortPoints(q[:, None], k, dist, P=k)[:, 0] for q, k in zip((pt, ps), K, strict=True)
+            )
+
+        # The fill's verified matches (their selection was made on the distorted positions).
+        ut, us = undistorted(m.pts_target, m.pts_source)
+        F, _ = cv2.findFundamentalMat(us, ut, cv2.FM_8POINT)
+        und = replace(m, pts_target=ut, pts_source=us, F=F)
+        _profile("the fill's matches, undistorted", und, K_t, K_s, true_scale, T_gt, cfg, thr)
+        mask = keypoint_mask(v.hole, cfg.matching.hole_margin_px * v.px_scale)
+        gray = to_gray_u8(v.target_gray), to_gray_u8(v.source_gray)
+        for budget in args.budgets:
+            kp, side = (int(x) for x in budget.split("@"))
+            pt, ps, _ = XFeatLighterGlue(kp, side)(*gray, mask)
+            out = v.hole[np.rint(pt[:, 1]).astype(int), np.rint(pt[:, 0]).astype(int)]
+            thr_l = thr * max(1.0, max(gray[0].shape) / side)
+            # Tentative matches verified as the ladder's re-check does, before and after undistortion.
+            for name, (qt, qs) in (
+                ("", (pt[~out], ps[~out])),
+                (", undistorted", undistorted(pt[~out], ps[~out])),
+            ):
+                F, keep = verify_essential(qt, qs, thr_l, (K_t.K, K_s.K))
+                ms = replace(m, pts_target=qt[keep], pts_source=qs[keep], F=F)
+                _profile(f"XFeat+LighterGlue {budget}{name}", ms, K_t, K_s, true_scale, T_gt, cfg, thr)
     return 0
 
 
