@@ -109,9 +109,10 @@ class _ImageFeatures:
 def _fused_cross_block() -> type:
     """kornia's LightGlue cross-attention block computing its two attentions with torch's fused
     ``scaled_dot_product_attention``. kornia takes that path on CUDA only; on CPU it materialises
-    the (M, N) similarity, a transposed copy of it and two softmaxes, which made the cross-attention
-    most of LighterGlue's time: 3.3 -> 2.1 CPU s on the fox pair at 4096 keypoints, the same 466
-    matches (benchmarks/speed/learned_rung.py). The same maths: SDPA's default scale is kornia's
+    the (M, N) similarity, a transposed copy of it and two softmaxes: on the fox pair at 4096
+    keypoints (new target, one thread) the matcher took 3.55 CPU s with kornia's path and 2.53
+    with this one, the same 478 matches (benchmarks/speed/learned_rung.py --variants
+    1:fused:0.95 1:kornia:0.95). The same maths: SDPA's default scale is kornia's
     ``dim_head ** -0.5``."""
     import kornia.feature.lightglue as kornia_lightglue
     import torch
@@ -197,7 +198,8 @@ class XFeatLighterGlue:
         """The calling thread runs torch with ``self.threads`` threads, then its own setting again.
         One by default: on a 2-core machine shared with other processes, two OpenMP threads that
         wait for each other cost about 5x the CPU and wall time of one (fox pair, 2048 keypoints,
-        load 7-9: 4.8 CPU s / 7.4 s wall against 0.9 / 1.5; benchmarks/speed/learned_rung.py)."""
+        new target, load ~10: 5.44 CPU s / 8.43 s wall against 1.07 / 1.59, kornia's attention
+        both; benchmarks/speed/learned_rung.py --variants 0:kornia:0.95 1:kornia:0.95)."""
         torch = self.torch
         before = torch.get_num_threads()
         if self.threads:
