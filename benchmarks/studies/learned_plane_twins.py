@@ -9,7 +9,10 @@ and the rotation errors of the two solution pairs of the calibrated homography o
 plane (true intrinsics) and of a second plane fitted to its outliers. Figures, not a test.
 
     PYTHONPATH=src <venv with the learned extra>/bin/python benchmarks/studies/learned_plane_twins.py \
-        [--pair DIR] [--budgets 2048@1024 4096@1024 ...]
+        [--pair DIR] [--budgets 2048@1024 4096@1024/0.95 ...]
+
+A budget is KEYPOINTS@LONG_SIDE, optionally /CONFIDENCE (LightGlue's early exit and pruning;
+default 0.95).
 """
 
 from __future__ import annotations
@@ -84,8 +87,9 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{pair.id}: working {size}, prior focal {P_t[0, 0]:.0f}, true {K_t[0, 0]:.0f}")
     mask = keypoint_mask(views.hole, cfg.matching.hole_margin_px * views.px_scale)
     for budget in args.budgets:
-        kp, side = (int(x) for x in budget.split("@"))
-        matcher = XFeatLighterGlue(kp, side)
+        size, _, conf = budget.partition("/")
+        kp, side = (int(x) for x in size.split("@"))
+        matcher = XFeatLighterGlue(kp, side, confidence=float(conf or 0.95))
         matcher(views.target_gray, views.source_gray, mask)  # load and warm up
         matcher._targets.clear()  # time a new target
         t0, c0 = time.perf_counter(), time.process_time()

