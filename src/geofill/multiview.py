@@ -53,12 +53,13 @@ from .depth.stereo import (
 )
 from .optimize.stage import Geometry
 from .prepare import WorkingViews
+from .triangulate import TriangulatedPoints
 
 #: Source pixels are splatted into the target on a grid of this step (px, working resolution)
 #: to compare the references' scales: every pixel would cost 16x as much for the same median.
 _SPLAT_STEP = 4
-#: Fewest known target pixels two references must both see to compare their scales.
-_MIN_SHARED_PX = 50
+#: Fewest depth comparisons that place a reference in the common frame.
+_MIN_SHARED = 20
 
 
 @dataclass(frozen=True)
@@ -68,6 +69,7 @@ class ViewGeometry:
     index: int  # 1-based, as the references were given
     views: WorkingViews
     geometry: Geometry
+    points: TriangulatedPoints
 
 
 @dataclass(frozen=True)
@@ -126,19 +128,19 @@ def _pose_with_scale(T: np.ndarray, scale: float) -> np.ndarray:
 
 
 def target_view_depth(g: ViewGeometry) -> np.ndarray:
-    """(H, W) float32 z in the target camera (the reference's units; NaN where no source pixel
-    lands), from the reference's depth splatted to the nearest target pixel, nearest first."""
+    """z in the target camera (the reference's units; NaN where no source pixel lands) on the
+    target's pixels ``[::_SPLAT_STEP, ::_SPLAT_STEP]``, from the reference's depth on the same grid
+    splatted to the nearest pixel, nearest first."""
     geo = g.geometry
-    ht, wt = g.views.hole.shape
+    K_t = _subsampled(geo.K_target, _SPLAT_STEP)
     inv = 1.0 / geo.depth[::_SPLAT_STEP, ::_SPLAT_STEP].astype(np.float64)
-    K_s = _subsampled(geo.K_source, _SPLAT_STEP)
-    u, v, z = project_source_grid_inv(inv, K_s, geo.K_target, geo.T)
+    u, v, z = project_source_grid_inv(inv, _subsampled(geo.K_source, _SPLAT_STEP), K_t, geo.T)
     ui, vi = np.rint(u), np.rint(v)
-    ok = np.isfinite(z) & (z > 0) & (ui >= 0) & (ui < wt) & (vi >= 0) & (vi < ht)
-    zbuf = np.full(ht * wt, np.inf)
-    np.minimum.at(zbuf, (vi[ok] * wt + ui[ok]).astype(np.int64), z[ok])
+    ok = np.isfinite(z) & (z > 0) & (ui >= 0) & (ui < K_t.width) & (vi >= 0) & (vi < K_t.height)
+    zbuf = np.full(K_t.height * K_t.width, np.inf)
+    np.minimum.at(zbuf, (vi[ok] * K_t.width + ui[ok]).astype(np.int64), z[ok])
     zbuf[~np.isfinite(zbuf)] = np.nan
-    return zbuf.reshape(ht, wt).astype(np.float32)
+    return zbuf.reshape(K_t.height, K_t.width).astype(np.float32)
 
 
 def _subsampled(K: Intrinsics, step: int) -> Intrinsics:
@@ -147,18 +149,38 @@ def _subsampled(K: Intrinsics, step: int) -> Intrinsics:
     return replace(K, fx=K.fx / step, fy=K.fy / step, cx=K.cx / step, cy=K.cy / step, width=w, height=h)
 
 
+def _target_z(g: ViewGeometry) -> tuple[np.ndarray, np.ndarray]:
+    """The reference's triangulated points: their target pixels (N, 2) and z in the target camera."""
+    T = g.geometry.T
+    return g.points.uv_target, g.points.xyz_source @ T[2, :3] + T[2, 3]
+
+
+def _sample(depth: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """``depth`` (a :func:`target_view_depth`) at the target pixels ``uv`` (N, 2; NaN outside)."""
+    ui, vi = (np.rint(a / _SPLAT_STEP).astype(np.int64) for a in (uv[:, 0], uv[:, 1]))
+    h, w = depth.shape
+    ok = (ui >= 0) & (ui < w) & (vi >= 0) & (vi < h)
+    out = np.full(len(uv), np.nan, np.float32)
+    out[ok] = depth[vi[ok], ui[ok]]
+    return out
+
+
 def common_scales(refs: Sequence[ViewGeometry]) -> list[tuple[float, float]]:
     """Per reference, (scale into the first reference's units, median relative spread of the
-    ratios): the median ratio of the two target-view depths over the known target pixels both see."""
+    ratios). Each ratio compares one measured depth with the other reference's at the same target
+    pixel: a reference's triangulated points (target z) against the other's depth splatted into the
+    target, both ways. Dense against dense spread 2-3x as much on the real sets (completed depth
+    on both sides)."""
     depths = [target_view_depth(g) for g in refs]
-    known = ~refs[0].views.hole
+    points = [_target_z(g) for g in refs]
     out = []
-    for d in depths:
-        both = known & np.isfinite(d) & np.isfinite(depths[0])
-        if np.count_nonzero(both) < _MIN_SHARED_PX:
+    for d, (uv, z) in zip(depths, points, strict=True):
+        uv0, z0 = points[0]
+        log_ratio = np.concatenate([np.log(_sample(depths[0], uv) / z), np.log(z0 / _sample(d, uv0))])
+        log_ratio = log_ratio[np.isfinite(log_ratio)]
+        if log_ratio.size < _MIN_SHARED:
             out.append((float("nan"), float("nan")))
             continue
-        log_ratio = np.log(depths[0][both].astype(np.float64) / d[both])
         centre = float(np.median(log_ratio))
         out.append((float(np.exp(centre)), float(np.expm1(np.median(np.abs(log_ratio - centre))))))
     return out
