@@ -93,10 +93,13 @@ def main(argv: list[str] | None = None) -> int:
         b, a = np.array([r[0] for r in rows]), np.array([r[1] for r in rows])
         n = b[:, 2]
         keep = n > 0
+
+        def mean(x: np.ndarray) -> float:
+            return float(np.average(x[keep], weights=n[keep]))
+
         print(
-            f"pixel-weighted over {keep.sum()} footprints: delta<1.25 "
-            f"{np.average(b[keep, 0], weights=n[keep]):.3f} -> {np.average(a[keep, 0], weights=n[keep]):.3f}, "
-            f"AbsRel {np.average(b[keep, 1], weights=n[keep]):.3f} -> {np.average(a[keep, 1], weights=n[keep]):.3f}"
+            f"pixel-weighted over {keep.sum()} footprints: delta<1.25 {mean(b[:, 0]):.3f} -> "
+            f"{mean(a[:, 0]):.3f}, AbsRel {mean(b[:, 1]):.3f} -> {mean(a[:, 1]):.3f}"
         )
     return 0
 
