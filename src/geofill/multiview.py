@@ -58,6 +58,9 @@ from .triangulate import TriangulatedPoints
 #: Source pixels are splatted into the target on a grid of this step (px, working resolution)
 #: to compare the references' scales: every pixel would cost 16x as much for the same median.
 _SPLAT_STEP = 4
+#: Footprint pixels farther than this (px at the sweep's resolution) from a measured pixel keep
+#: their depth: a re-completion from a few measured pixels changed footprints it did not measure.
+_REACH_PX = 8
 #: Fewest depth comparisons that place a reference in the common frame.
 _MIN_SHARED = 20
 
@@ -335,15 +338,17 @@ def _grid(shape: tuple[int, int], step: int) -> np.ndarray:
 def _completed(
     g: ViewGeometry, crop: _Sweep, inv: np.ndarray, measured: np.ndarray, bounds: tuple[float, float]
 ) -> np.ndarray:
-    """The reference's working depth with its footprint replaced: the measured pixels (every
-    second) and the reference's own depth outside the footprint (every fourth) seed an edge-aware
+    """The reference's working depth with the footprint near its measured pixels replaced: the
+    measured pixels (every second) and the reference's own depth elsewhere (outside the footprint,
+    or farther than :data:`_REACH_PX` from a measured pixel; every fourth) seed an edge-aware
     completion of the crop, as the depth stage completes its sweep."""
     h, w = crop.footprint.shape
     ys_m, xs_m = np.nonzero(measured & _grid((h, w), 2))
     if len(ys_m) == 0:
         ys_m, xs_m = np.nonzero(measured)
-    ring = ~crop.footprint & np.isfinite(crop.inv) & (crop.inv > 0)
-    ys_r, xs_r = np.nonzero(ring & _grid((h, w), 4))
+    far = cv2.distanceTransform((~measured).astype(np.uint8), cv2.DIST_L2, 3) > _REACH_PX
+    kept = (far | ~crop.footprint) & np.isfinite(crop.inv) & (crop.inv > 0)
+    ys_r, xs_r = np.nonzero(kept & _grid((h, w), 4))
     uv = np.concatenate([np.stack([xs_m, ys_m], 1), np.stack([xs_r, ys_r], 1)]).astype(np.float32)
     vals = np.concatenate([inv[ys_m, xs_m], crop.inv[ys_r, xs_r]])
     dense = np.clip(interpolate_edge_aware(to_uint8(crop.rgb), uv, vals), *bounds)
@@ -358,8 +363,8 @@ def _completed(
         ((np.arange(Y0, Y1) + 0.5) / sh - 0.5 - crop.y0).astype(np.float32),
     )
     up_inv = cv2.remap(dense, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    foot = crop.footprint.astype(np.float32)
-    up_foot = cv2.remap(foot, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT) > 0.5
+    changed = (crop.footprint & ~far).astype(np.float32)
+    up_foot = cv2.remap(changed, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT) > 0.5
     region = depth[Y0:Y1, X0:X1]
     region[up_foot] = 1.0 / up_inv[up_foot]
     return depth

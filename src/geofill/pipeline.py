@@ -544,7 +544,9 @@ def multiview_step(
     (:func:`geofill.multiview.multiview_depth`)."""
     live = [r for r in refs if r.geometry is not None and not r.dropped]
     geometries, result = multiview_depth(
-        [ViewGeometry(r.index, r.views, r.geometry, r.points) for r in live], cfg.multiview, cfg.fusion.parallel
+        [ViewGeometry(r.index, r.views, r.geometry, r.points) for r in live],
+        cfg.multiview,
+        cfg.fusion.parallel,
     )
     new = {r.index: g for r, g in zip(live, geometries, strict=True)}
     return [replace(r, geometry=new[r.index]) if r.index in new else r for r in refs], result
