@@ -24,12 +24,15 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository r
 from benchmarks.common import MULTIVIEW
 
 
-def accuracy(depth: np.ndarray, gt: np.ndarray, region: np.ndarray) -> tuple[float, float, int]:
-    """(delta < 1.25, AbsRel, pixels) of ``depth`` fitted to ``gt`` by the median ratio over ``region``."""
+def accuracy(
+    depth: np.ndarray, gt: np.ndarray, region: np.ndarray, scale: float | None = None
+) -> tuple[float, float, int]:
+    """(delta < 1.25, AbsRel, pixels) of ``depth`` times ``scale`` (default: fitted to ``gt`` by the
+    median ratio over ``region``)."""
     ok = region & np.isfinite(depth) & (depth > 0) & (gt > 0)
     if not ok.any():
         return float("nan"), float("nan"), 0
-    d = depth[ok] * np.median(gt[ok] / depth[ok])
+    d = depth[ok] * (np.median(gt[ok] / depth[ok]) if scale is None else scale)
     ratio = np.maximum(d / gt[ok], gt[ok] / d)
     return float(np.mean(ratio < 1.25)), float(np.mean(np.abs(d - gt[ok]) / gt[ok])), int(ok.sum())
 
@@ -82,11 +85,17 @@ def main(argv: list[str] | None = None) -> int:
                     foot[crop.y0 : crop.y0 + fh, crop.x0 : crop.x0 + fw] = crop.footprint
                 before = accuracy(r0.geometry.depth, gt, foot)
                 now = accuracy(r1.geometry.depth, gt, foot)
+                # Where the stage changed the depth, with the scale fitted over the whole footprint.
+                changed = foot & (r1.geometry.depth != r0.geometry.depth)
+                geos = (r0.geometry, r1.geometry)
+                fits = [float(np.nanmedian(np.where(foot & (gt > 0), gt / g.depth, np.nan))) for g in geos]
+                on_changed = [accuracy(g.depth, gt, changed, s) for g, s in zip(geos, fits, strict=True)]
                 rows.append((before, now))
                 print(
                     f"{pair.id} seed {seed} ref {r0.index}: footprint {before[2]} px, measured "
                     f"{100 * measured.get(r0.index, 0.0):.0f}%: delta<1.25 {before[0]:.3f} -> {now[0]:.3f}, "
-                    f"AbsRel {before[1]:.3f} -> {now[1]:.3f}",
+                    f"AbsRel {before[1]:.3f} -> {now[1]:.3f}; on the {on_changed[0][2]} px changed: "
+                    f"delta<1.25 {on_changed[0][0]:.3f} -> {on_changed[1][0]:.3f}",
                     flush=True,
                 )
     if rows:

@@ -4,8 +4,10 @@ Per reference photo (:func:`run_reference`)::
 
     prepare -> match -> focal -> pose -> triangulate -> depth -> optimize -> render -> refine -> screen
 
-then, once for the fill (:func:`fill`): fuse the references' renders -> composite with single-image
-inpainting. Each stage is a function from typed inputs to a frozen result that owns its
+with several references, every one stops after ``optimize`` for the multi-view depth stage
+(:mod:`geofill.multiview`: each one's depth behind the hole measured from the others) and then goes
+on; then, once for the fill (:func:`fill`): fuse the references' renders -> composite with
+single-image inpainting. Each stage is a function from typed inputs to a frozen result that owns its
 ``summary()`` line (printed with the stage's time) and its ``report()`` section. A reference that
 cannot help raises :class:`geofill.errors.ReferenceUnusable` in whichever stage finds out; it is
 dropped with that reason and the others go on. Any other exception is a bug and propagates.
