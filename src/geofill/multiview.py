@@ -207,11 +207,11 @@ def _grey(rgb: np.ndarray) -> np.ndarray:
     return cv2.cvtColor(rgb.astype(np.float32), cv2.COLOR_RGB2GRAY)
 
 
-def _resized(image: np.ndarray, s: float, interpolation: int = cv2.INTER_AREA) -> np.ndarray:
+def _resized(image: np.ndarray, s: float) -> np.ndarray:
     if s >= 1.0:
         return image
     h, w = image.shape[:2]
-    return cv2.resize(image, (max(round(w * s), 8), max(round(h * s), 8)), interpolation=interpolation)
+    return cv2.resize(image, (max(round(w * s), 8), max(round(h * s), 8)), interpolation=cv2.INTER_AREA)
 
 
 def footprint_crop(g: ViewGeometry, s: float, margin: int) -> _Sweep | None:
@@ -255,73 +255,87 @@ class _View:
     T: np.ndarray
 
 
+@dataclass(frozen=True)
+class _Greys:
+    """The target (with its hole) and every reference in grey at the sweep's resolution, each
+    resized once for all the sweeps that use it."""
+
+    target: np.ndarray
+    hole: np.ndarray
+    sources: list[np.ndarray]
+
+    @classmethod
+    def of(cls, refs: Sequence[ViewGeometry], max_side: int) -> _Greys:
+        views = refs[0].views
+        tgt = _grey(_resized(views.target, _scale(views.target.shape, max_side)))
+        ht, wt = tgt.shape
+        hole = cv2.resize(views.hole.astype(np.uint8), (wt, ht), interpolation=cv2.INTER_AREA) > 0
+        sources = [_grey(_resized(g.views.source, _scale(g.views.source.shape, max_side))) for g in refs]
+        return cls(tgt, hole, sources)
+
+
+def _scale(shape: tuple[int, ...], max_side: int) -> float:
+    return min(1.0, max_side / max(shape[:2]))
+
+
 def other_views(
-    k: int, refs: Sequence[ViewGeometry], scales: Sequence[float], s: float, cfg: MultiViewConfig
-):
+    k: int, refs: Sequence[ViewGeometry], scales: Sequence[float], greys: _Greys, use_target: bool
+) -> list[_View]:
     """The views reference ``refs[k]`` is swept against: every other placed reference (through the
-    common frame) and, when ``cfg.use_target``, the target with its hole marked invalid."""
+    common frame) and, when ``use_target``, the target with its hole marked invalid."""
     gk = refs[k].geometry
     out = []
-    if cfg.use_target:
-        tgt = _resized(refs[k].views.target, s)
-        ht, wt = tgt.shape[:2]
-        hole = cv2.resize(refs[k].views.hole.astype(np.uint8), (wt, ht), interpolation=cv2.INTER_AREA) > 0
-        out.append(_View(_grey(tgt), hole, gk.K_target.resized(wt, ht), gk.T))
+    if use_target:
+        ht, wt = greys.target.shape
+        out.append(_View(greys.target, greys.hole, gk.K_target.resized(wt, ht), gk.T))
     for j, g in enumerate(refs):
         if j == k or not np.isfinite(scales[j]):
             continue
         # X_j = R_j^T (X_t - t_j) with X_t and t_j both in reference k's units.
         T_tj = np.linalg.inv(_pose_with_scale(g.geometry.T, scales[j] / scales[k]))
-        src = _resized(g.views.source, s)
-        hj, wj = src.shape[:2]
-        out.append(
-            _View(_grey(src), np.zeros((hj, wj), bool), g.geometry.K_source.resized(wj, hj), T_tj @ gk.T)
-        )
+        hj, wj = greys.sources[j].shape
+        K_j = g.geometry.K_source.resized(wj, hj)
+        out.append(_View(greys.sources[j], np.zeros((hj, wj), bool), K_j, T_tj @ gk.T))
     return out
 
 
-def best_k_score(ncc: np.ndarray, valid: np.ndarray, best_k: int) -> tuple[np.ndarray, np.ndarray]:
-    """Per hypothesis and pixel, the mean NCC of the ``best_k`` best views (V, D, h, w) -> (D, h, w),
-    and how many views had evidence. A view without evidence scores 0 (neither for nor against):
-    a view that does not see the point (occluded, outside) has a low NCC there and drops out."""
+def best_k_score(ncc: list[np.ndarray], best_k: int) -> np.ndarray:
+    """Per hypothesis and pixel, the mean NCC of the ``best_k`` best views (each (D, h, w); the
+    first is overwritten). A view without evidence scores 0 (neither for nor against): a view that
+    does not see the point (occluded, outside) has a low NCC there and drops out."""
     k = min(best_k, len(ncc))
     if k == 1:
-        return ncc.max(axis=0), valid.sum(axis=0)
-    top = -np.partition(-ncc, k - 1, axis=0)[:k]
-    return top.mean(axis=0), valid.sum(axis=0)
+        out = ncc[0]
+        for c in ncc[1:]:
+            np.maximum(out, c, out=out)
+        return out
+    return -np.partition(-np.stack(ncc), k - 1, axis=0)[:k].mean(axis=0)
 
 
 def sweep_reference(
-    k: int, refs: Sequence[ViewGeometry], scales: Sequence[float], cfg: MultiViewConfig
+    k: int, refs: Sequence[ViewGeometry], scales: Sequence[float], greys: _Greys, cfg: MultiViewConfig
 ) -> tuple[np.ndarray | None, int, int, int]:
     """Multi-view depth of ``refs[k]``'s hole footprint: (new working-resolution depth or None when
     nothing was measured, footprint px, measured px, views)."""
     g = refs[k]
     geo = g.geometry
-    hs0, ws0 = geo.depth.shape
-    s = min(1.0, cfg.max_side / max(hs0, ws0))
     margin = cfg.patch_px + cfg.aggregation_radius
-    crop = footprint_crop(g, s, margin)
-    views = other_views(k, refs, scales, s, cfg)
+    crop = footprint_crop(g, _scale(g.views.source.shape, cfg.max_side), margin)
+    views = other_views(k, refs, scales, greys, cfg.use_target)
     if crop is None or not views:
         return None, 0, 0, len(views)
     foot_px = int(crop.footprint.sum())
-    finite = crop.inv[np.isfinite(crop.inv) & (crop.inv > 0)]
-    all_inv = 1.0 / geo.depth[np.isfinite(geo.depth) & (geo.depth > 0)]
-    lo, hi = inverse_depth_bounds(all_inv if all_inv.size else finite)
+    lo, hi = inverse_depth_bounds(1.0 / geo.depth[np.isfinite(geo.depth) & (geo.depth > 0)])
     shape = crop.grey.shape
     span = np.max([displacement_span(shape, crop.K, v.K, v.T, lo, hi) for v in views], axis=0)
     D = plane_count(span, cfg.max_planes)
     hyp = Hypotheses(np.full(shape, lo), np.full(shape, (hi - lo) / max(D - 1, 1)), D)
     scored = [sweep_ncc(crop.grey, v.grey, v.invalid, crop.K, v.K, v.T, hyp, cfg.patch_px) for v in views]
-    score, n_valid = best_k_score(
-        np.stack([c for c, _ in scored]), np.stack([m for _, m in scored]), cfg.best_k
-    )
-    del scored
-    score = aggregate(np.ascontiguousarray(score, np.float32), crop.grey, cfg.aggregation_radius)
+    score = aggregate(best_k_score([c for c, _ in scored], cfg.best_k), crop.grey, cfg.aggregation_radius)
     inv, s1, rival, best = winner_take_all(score, hyp)
     conf = confidence(s1, s1 - rival)
-    seen = np.take_along_axis(n_valid, best[None], 0)[0] >= min(cfg.best_k, len(views))
+    n_valid = sum(np.take_along_axis(valid, best[None], 0)[0] for _, valid in scored)
+    seen = n_valid >= min(cfg.best_k, len(views))
     measured = crop.footprint & seen & (conf >= cfg.min_confidence) & np.isfinite(inv)
     n_measured = int(measured.sum())
     if n_measured == 0:
@@ -379,11 +393,12 @@ def multiview_depth(
         return [g.geometry for g in refs], MultiViewDepth(())
     placed = common_scales(refs)
     scales = [sc if np.isfinite(sp) and sp <= cfg.max_scale_spread else float("nan") for sc, sp in placed]
+    greys = _Greys.of(refs, cfg.max_side)
 
     def one(k: int):
         if not np.isfinite(scales[k]):
             return None, 0, 0, 0
-        return sweep_reference(k, refs, scales, cfg)
+        return sweep_reference(k, refs, scales, greys, cfg)
 
     with ThreadPoolExecutor(max(1, min(parallel, len(refs)))) as pool:
         results = list(pool.map(one, range(len(refs))))
