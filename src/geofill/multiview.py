@@ -45,9 +45,11 @@ from .depth.stereo import (
     aggregate,
     confidence,
     displacement_span,
+    grey,
     inverse_depth_bounds,
     plane_count,
     project_source_grid_inv,
+    resize_to,
     sweep_ncc,
     winner_take_all,
 )
@@ -203,22 +205,11 @@ class _Sweep:
     size: tuple[int, int]  # (w, h) of the whole sweep-resolution image
 
 
-def _grey(rgb: np.ndarray) -> np.ndarray:
-    return cv2.cvtColor(rgb.astype(np.float32), cv2.COLOR_RGB2GRAY)
-
-
-def _resized(image: np.ndarray, s: float) -> np.ndarray:
-    if s >= 1.0:
-        return image
-    h, w = image.shape[:2]
-    return cv2.resize(image, (max(round(w * s), 8), max(round(h * s), 8)), interpolation=cv2.INTER_AREA)
-
-
 def footprint_crop(g: ViewGeometry, s: float, margin: int) -> _Sweep | None:
     """The pixels of reference ``g`` (at scale ``s`` of its working views) that its own depth puts
     in the target's hole, in their bounding box grown by ``margin`` px; None when there are none."""
     geo = g.geometry
-    rgb = _resized(g.views.source, s)
+    rgb = resize_to(g.views.source, s)
     h, w = rgb.shape[:2]
     K = geo.K_source.resized(w, h)
     inv = 1.0 / cv2.resize(geo.depth, (w, h), interpolation=cv2.INTER_LINEAR).astype(np.float64)
@@ -240,7 +231,7 @@ def footprint_crop(g: ViewGeometry, s: float, margin: int) -> _Sweep | None:
     Kc = replace(K, cx=K.cx - x0, cy=K.cy - y0, width=x1 - x0, height=y1 - y0)
     crop = rgb[y0:y1, x0:x1]
     return _Sweep(
-        x0, y0, _grey(crop), crop, Kc, foot[y0:y1, x0:x1], inv[y0:y1, x0:x1].astype(np.float32), (w, h)
+        x0, y0, grey(crop), crop, Kc, foot[y0:y1, x0:x1], inv[y0:y1, x0:x1].astype(np.float32), (w, h)
     )
 
 
@@ -267,10 +258,10 @@ class _Greys:
     @classmethod
     def of(cls, refs: Sequence[ViewGeometry], max_side: int) -> _Greys:
         views = refs[0].views
-        tgt = _grey(_resized(views.target, _scale(views.target.shape, max_side)))
+        tgt = grey(resize_to(views.target, _scale(views.target.shape, max_side)))
         ht, wt = tgt.shape
         hole = cv2.resize(views.hole.astype(np.uint8), (wt, ht), interpolation=cv2.INTER_AREA) > 0
-        sources = [_grey(_resized(g.views.source, _scale(g.views.source.shape, max_side))) for g in refs]
+        sources = [grey(resize_to(g.views.source, _scale(g.views.source.shape, max_side))) for g in refs]
         return cls(tgt, hole, sources)
 
 
