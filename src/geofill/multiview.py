@@ -8,11 +8,12 @@ completed from the surroundings. The other references do see it. This stage runs
 reference has its geometry (after ``optimize``):
 
 One frame
-    Each reference's depth splatted into the target (z-buffer, working resolution) gives the
-    target-view depth of the known pixels in its own units; the median ratio to the first
-    reference's over the known pixels both see fixes each reference's scale in one common frame
-    (the target's camera, the first reference's units). The spread of those ratios says how far
-    two pairs' geometries disagree; a reference whose spread is too large is left out as a view.
+    Each reference's triangulated points, put in the target camera by its pose, are compared with
+    the first reference's depth splatted into the target (z-buffer) at the same target pixels, and
+    the first reference's points with this reference's depth: the median ratio fixes each
+    reference's scale in one common frame (the target's camera, the first reference's units). The
+    spread of those ratios says how far two pairs' geometries disagree; a reference whose spread
+    is over ``multiview.max_scale_spread`` is neither swept nor a view.
 Sweep
     For reference k, inverse-depth hypotheses along its rays (the range of its own depth map,
     widened as the depth stage does) are scored by NCC against every other view: the other
@@ -22,9 +23,14 @@ Sweep
     see the point scores low and is left out). Then the depth stage's guided-filter aggregation,
     winner-take-all and confidence (a good NCC clearly better than the best rival peak).
 Completion
-    Confident footprint pixels and the reference's own depth around the footprint seed the same
-    edge-aware completion as the depth stage; the result replaces the depth inside the footprint
-    only. A footprint with no confident pixel keeps its depth unchanged.
+    Confident footprint pixels and the reference's own depth elsewhere (outside the footprint, or
+    farther than a few px from any measured pixel) seed the same edge-aware completion as the depth
+    stage; the result replaces the depth only in the footprint near measured pixels. A footprint
+    with no confident pixel keeps its depth unchanged.
+
+Each pair's geometry is still its own (pose and focal from its pair alone, placed by one scale):
+where the pairs' focal lengths or poses disagree, the other views are misregistered and the sweep
+finds little (see docs/architecture.md for what it measured on the real sets).
 """
 
 from __future__ import annotations
@@ -80,8 +86,8 @@ class ViewGeometry:
 @dataclass(frozen=True)
 class ReferenceMultiView:
     """What the stage measured for one reference. ``scale`` multiplies its pose units into the
-    common frame's (NaN: it shares too few known pixels with the first reference to be placed);
-    ``scale_spread`` is the median relative disagreement of the two target-view depths."""
+    common frame's (NaN: too few depth comparisons with the first reference to place it);
+    ``scale_spread`` is the median relative disagreement of those comparisons after the scale."""
 
     index: int
     scale: float
