@@ -110,7 +110,7 @@ def test_each_footprint_gets_the_true_depth_from_the_other_reference(scene):
     assert result.report()["references"][1]["measured_fraction"] == result.references[1].measured_fraction
 
 
-def test_a_reference_that_no_other_view_sees_keeps_its_depth(scene):
+def test_one_reference_alone_is_left_as_it_is(scene):
     refs, _ = scene
     geometries, result = multiview_depth(refs[:1], MultiViewConfig())
     assert geometries[0] is refs[0].geometry and result.references == ()
