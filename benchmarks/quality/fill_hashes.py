@@ -1,7 +1,7 @@
 """SHA-256 of the fill of every DEV pair and multi-reference set (all references), to show that a
 change leaves fills byte-identical: hash two trees and compare the JSON files.
 
-    .venv/bin/python benchmarks/quality/fill_hashes.py OUT.json [--before REV|SRC]
+    .venv/bin/python benchmarks/quality/fill_hashes.py OUT.json [--before REV|SRC] [--set KEY=VALUE]
 
 The hole is the evaluation's brush-stroke mask (seed 0), blanked as ``geofill eval`` gives it. The
 inputs are made by this checkout; ``--before`` fills them with an earlier revision's (or a source
@@ -37,16 +37,20 @@ def write_inputs(folder: Path) -> None:
         np.savez(folder / f"{pair_dir.name}.npz", target=blanked(pair.target, hole), hole=hole, **sources)
 
 
-def hash_fills(folder: Path) -> dict[str, list]:
+def hash_fills(folder: Path, overrides: list[str]) -> dict[str, list]:
     """Per set in ``folder``: the fill's SHA-256 (first 16 hex digits), status and supplied fractions
-    (only the public ``geofill.fill``, which every revision has)."""
+    (only the public ``geofill.fill``, which every revision has), with the config ``overrides``
+    (``KEY=VALUE``; none for the default config)."""
     from geofill import fill
+    from geofill.config import FillConfig, parse_overrides
+
+    cfg = FillConfig().updated(parse_overrides(overrides)) if overrides else None
 
     out = {}
     for path in sorted(folder.glob("*.npz")):
         data = np.load(path)
         sources = [data[f"source{k}"] for k in range(len(data.files) - 2)]
-        res = fill(data["target"], data["hole"], sources)
+        res = fill(data["target"], data["hole"], sources, cfg)
         digest = hashlib.sha256(res.image.tobytes()).hexdigest()[:16]
         out[path.stem] = [digest, res.report.status, [round(f, 4) for f in res.report.supplied_fraction]]
         print(path.stem, *out[path.stem], flush=True)
@@ -59,10 +63,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--before", metavar="REV|SRC", help="fill with an earlier revision's (or src folder's) geofill"
     )
+    ap.add_argument(
+        "--set", action="append", default=[], metavar="KEY=VALUE", help="config override of the fills"
+    )
     ap.add_argument("--inputs", metavar="DIR", help=argparse.SUPPRESS)  # the child's: inputs already made
     args = ap.parse_args(argv)
     if args.inputs:
-        Path(args.out).write_text(json.dumps(hash_fills(Path(args.inputs)), indent=1))
+        Path(args.out).write_text(json.dumps(hash_fills(Path(args.inputs), args.set), indent=1))
         return 0
     with tempfile.TemporaryDirectory() as tmp:
         inputs = Path(tmp) / "inputs"
@@ -73,6 +80,7 @@ def main(argv: list[str] | None = None) -> int:
             src = args.before if Path(args.before).is_dir() else export_src(args.before, Path(tmp))
             env = {**os.environ, "PYTHONPATH": str(src)}
         cmd = [sys.executable, __file__, args.out, "--inputs", str(inputs)]
+        cmd += [f"--set={s}" for s in args.set]
         return subprocess.run(cmd, env=env, check=False).returncode
 
 

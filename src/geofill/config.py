@@ -12,6 +12,7 @@ Sections follow the pipeline, but some are read by more than one stage. Which st
   screen: ``screen``;
 - fuse: ``fusion`` and ``refine.band_px`` (its known ring); composite: ``inpaint`` and
   ``refine.feather_px``;
+- multi-view depth (several references, after optimize): ``multiview``;
 - the reference runner: ``fusion.parallel``; the input checks: the top-level limits; the progress:
   ``time_budget_s``; the batch's reference picker: ``matching`` and ``geometry.min_inliers``.
 
@@ -759,6 +760,55 @@ class FusionConfig:
 
 
 @dataclass
+class MultiViewConfig:
+    """With several references: each one's depth behind the hole measured from the others
+    (:mod:`geofill.multiview`), after every reference has its geometry. A single reference never
+    runs it."""
+
+    depth: bool = setting(
+        True,
+        "Measure each reference's depth where it lands in the hole (which the target cannot see) by a "
+        "plane sweep against the other references and the target; off: that depth stays completed from "
+        "the surroundings.",
+    )
+    max_side: Annotated[int, Range(32, 4096)] = setting(
+        448,
+        "Long side (px) of the sweep.",
+    )
+    max_planes: Annotated[int, Range(2, 1024)] = setting(
+        96,
+        "Most depth hypotheses (uniform in inverse depth); fewer when the matches move less (one per px).",
+    )
+    best_k: Annotated[int, Range(1, 16)] = setting(
+        1,
+        "Occlusion handling: each hypothesis scores the mean NCC of this many best views (a view that "
+        "does not see the point scores low and is left out).",
+    )
+    use_target: bool = setting(
+        True,
+        "Score against the target too (outside its hole) besides the other references.",
+    )
+    patch_px: Annotated[int, Range(3, 63)] = setting(
+        7, "Side (px at the sweep's resolution) of the NCC window."
+    )
+    aggregation_radius: Annotated[int, Range(0, 64)] = setting(
+        8,
+        "Radius (px) of the guided filter that aggregates each cost slice; 0 = off.",
+    )
+    min_confidence: Annotated[float, Range(0, 1)] = setting(
+        0.5,
+        "Footprint pixels under this confidence (0-1: NCC and margin over the best rival peak, as the "
+        "depth stage) keep completed depth.",
+    )
+    max_scale_spread: Annotated[float, Range(0, 10)] = setting(
+        0.15,
+        "A reference whose target-view depth disagrees with the first reference's by more than this "
+        "(median relative difference after the scale fit) is not placed in the common frame: it is "
+        "neither swept nor a view.",
+    )
+
+
+@dataclass
 class ScreenConfig:
     """What of a reference's render may be copied into the hole (:mod:`geofill.screen`). What the
     hole shows is the thing the user removes: reference content that shows it again is refused.
@@ -842,6 +892,7 @@ class FillConfig:
     refine: RefineConfig = field(default_factory=RefineConfig)
     fusion: FusionConfig = field(default_factory=FusionConfig)
     screen: ScreenConfig = field(default_factory=ScreenConfig)
+    multiview: MultiViewConfig = field(default_factory=MultiViewConfig)
     working_max_side: Annotated[int, Range(64, 16384)] = setting(
         1280,
         "Geometry (matching, pose, depth, optimisation) runs with the long side capped at this (px); "

@@ -4,8 +4,10 @@ Per reference photo (:func:`run_reference`)::
 
     prepare -> match -> focal -> pose -> triangulate -> depth -> optimize -> render -> refine -> screen
 
-then, once for the fill (:func:`fill`): fuse the references' renders -> composite with single-image
-inpainting. Each stage is a function from typed inputs to a frozen result that owns its
+with several references, every one stops after ``optimize`` for the multi-view depth stage
+(:mod:`geofill.multiview`: each one's depth behind the hole measured from the others) and then goes
+on; then, once for the fill (:func:`fill`): fuse the references' renders -> composite with
+single-image inpainting. Each stage is a function from typed inputs to a frozen result that owns its
 ``summary()`` line (printed with the stage's time) and its ``report()`` section. A reference that
 cannot help raises :class:`geofill.errors.ReferenceUnusable` in whichever stage finds out; it is
 dropped with that reason and the others go on. Any other exception is a bug and propagates.
@@ -38,6 +40,7 @@ from .fuse import Fusion, fuse_references
 from .intrinsics import ExifLens
 from .io import LoadedImage, as_rgb_uint8, as_source_mask, validate_pair
 from .match import Matches, match_pair
+from .multiview import MultiViewDepth, ViewGeometry, multiview_depth
 from .optimize.stage import Geometry, optimize_geometry
 from .pose import PoseEstimate, estimate_pose
 from .preflight import check_resources
@@ -176,6 +179,9 @@ class FillReport:
     #: hole shows, the thing removed), ``masked`` (it came from pixels the user masked).
     refused_fraction: dict[str, float] = field(default_factory=dict)
     fusion: dict[str, Any] = field(default_factory=dict)
+    #: With several references: per reference, its scale in the common frame and how much of its
+    #: hole footprint got measured (not completed) depth (:mod:`geofill.multiview`).
+    multiview: dict[str, Any] = field(default_factory=dict)
     inpaint_method: str = ""
     depth_choice: str = ""
     #: Seconds per stage, summed over the references (which may run at the same time).
@@ -438,7 +444,8 @@ def fill(
         raise ArrayFormatError(f"{len(masks)} source masks for {len(images)} sources")
     started = prog.wall_s()
     shared_step = len(images) > 1  # at most one "shared focal" stage
-    prog.plan(1 + len(images) * len(REFERENCE_STAGES) + shared_step + 2)
+    mv_step = len(images) > 1 and cfg.multiview.depth  # at most one "multi-view depth" stage
+    prog.plan(1 + len(images) * len(REFERENCE_STAGES) + shared_step + mv_step + 2)
     with prog.stage("check inputs"):
         ctx = prepare_fill(target, mask, images, cfg, target_exif, prog.say, prog.detail)
     refs = []
@@ -455,6 +462,12 @@ def fill(
         prog.advance(sum(r.focal is not None for r in refs))  # their focal stage will not run
     else:
         prog.advance(shared_step)
+    multiview = None
+    if mv_step:
+        refs = _run_references(ctx, refs, prog, until="optimize")
+        with prog.stage("multi-view depth") as notes:
+            refs, multiview = multiview_step(refs, cfg)
+            notes.append(multiview.summary())
     refs = _run_references(ctx, refs, prog)
     with prog.stage("fuse") as notes:
         fusion = fuse_references(ctx.target, ctx.hole, [r for r in refs if r.usable], cfg)
@@ -463,6 +476,8 @@ def fill(
         image = composite(ctx, fusion)
         notes.append(f"single-image inpainting: {ctx.inpainter.description}")
     report = _report(ctx, refs, fusion, prog)
+    if multiview is not None:
+        report.multiview = multiview.report()
     report.wall_s = prog.wall_s() - started
     if report.status == "single_image":
         prog.say("no reference photo could be used: the whole hole was painted from its surroundings")
@@ -522,6 +537,21 @@ def shared_focal(refs: list[ReferenceArtifacts], cfg: FillConfig) -> list[Refere
         else r
         for r in refs
     ]
+
+
+def multiview_step(
+    refs: list[ReferenceArtifacts], cfg: FillConfig
+) -> tuple[list[ReferenceArtifacts], MultiViewDepth]:
+    """Every reference with geometry given its hole footprint's depth measured from the others
+    (:func:`geofill.multiview.multiview_depth`)."""
+    live = [r for r in refs if r.geometry is not None and not r.dropped]
+    geometries, result = multiview_depth(
+        [ViewGeometry(r.index, r.views, r.geometry, r.points) for r in live],
+        cfg.multiview,
+        cfg.fusion.parallel,
+    )
+    new = {r.index: g for r, g in zip(live, geometries, strict=True)}
+    return [replace(r, geometry=new[r.index]) if r.index in new else r for r in refs], result
 
 
 def _run_references(

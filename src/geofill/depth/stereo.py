@@ -75,11 +75,13 @@ class SweepResult:
     bounds: tuple[float, float]  # inverse-depth range of the sweep (:func:`inverse_depth_bounds`)
 
 
-def _grey(image: np.ndarray) -> np.ndarray:
+def grey(image: np.ndarray) -> np.ndarray:
+    """Float RGB -> float32 grey."""
     return cv2.cvtColor(image.astype(np.float32), cv2.COLOR_RGB2GRAY)
 
 
-def _resize_to(image: np.ndarray, scale: float) -> np.ndarray:
+def resize_to(image: np.ndarray, scale: float) -> np.ndarray:
+    """``image`` shrunk by ``scale`` (area averaging; at least 8 px a side), as is when ``scale >= 1``."""
     h, w = image.shape[:2]
     if scale >= 1.0:
         return image
@@ -409,7 +411,7 @@ def plane_sweep(ctx: DepthContext) -> SweepResult:
         raise ReferenceUnusable(f"stereo needs triangulated points to bound its depth range; got {len(pts)}")
     hs0, ws0 = ctx.source.shape[:2]
     s = min(1.0, cfg.stereo_max_side / max(hs0, ws0))
-    src_rgb = _resize_to(ctx.source, s)
+    src_rgb = resize_to(ctx.source, s)
     hs, ws = src_rgb.shape[:2]
     K_s = ctx.K_source.resized(ws, hs)
     T = ctx.pose.T
@@ -417,7 +419,7 @@ def plane_sweep(ctx: DepthContext) -> SweepResult:
     # The target at the source's pixel footprint, so that resampling it onto the source grid does
     # not alias when it sees the scene closer up (wide baselines, zoom).
     s_t = min(1.0, 1.0 / target_magnification((hs, ws), K_s, ctx.K_target, T, np.median(pts.depth)))
-    tgt = _resize_to(_grey(ctx.target), s_t)
+    tgt = resize_to(grey(ctx.target), s_t)
     ht, wt = tgt.shape
     K_t = ctx.K_target.resized(wt, ht)
     hole = cv2.resize(ctx.hole.astype(np.uint8), (wt, ht), interpolation=cv2.INTER_AREA) > 0
@@ -425,7 +427,7 @@ def plane_sweep(ctx: DepthContext) -> SweepResult:
     D = plane_count(span, cfg.stereo_max_planes)
     prior = sparse_prior(to_uint8(src_rgb), pts, (hs0, ws0)) if (span > D * PLANE_STEP_PX).any() else None
     hyp = hypotheses(span, prior, lo, hi, D)
-    src = _grey(src_rgb)
+    src = grey(src_rgb)
     # Invalid windows score 0 (no evidence either way): aggregation neither rewards nor punishes them.
     ncc, valid = sweep_ncc(src, tgt, hole, K_s, K_t, T, hyp, cfg.stereo_patch_px)
     ncc = aggregate(ncc, src, cfg.stereo_aggregation_radius)
