@@ -735,8 +735,17 @@ class FusionConfig:
         "A reference's candidate region keeps the pixels whose score is at least this fraction of the best "
         "reference's there (the seam is searched only inside such overlaps).",
     )
+    cross_strangers: Literal["off", "decided", "disputed"] = setting(
+        "decided",
+        "Refuse a reference's render where it shows what the other references covering the same hole pixels "
+        'do not (a stranger inside the hole\'s footprint). "decided": where it is outvoted (three or more '
+        "cover) or, where two cover, where the stranger test's refusals nearby or the colours of the hole's "
+        'surroundings say which one is the stranger; "disputed": also every reference that disagrees with '
+        'all the others covering a pixel when nothing decides (the pixel is then painted); "off". Uses the '
+        "``screen.stranger_*`` settings; ``screen.stranger_threshold=0`` turns it off too.",
+    )
     geometry: bool = setting(
-        True,
+        False,
         "Weigh the references by where their surfaces lie in 3D: each render's depth is brought to one "
         "scale on the known ring around the hole; where references covering a hole pixel disagree, the "
         "ones whose surfaces agree with others' are preferred (``agreement_gain``) and a surface nearer "

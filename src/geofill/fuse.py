@@ -33,6 +33,7 @@ import numpy as np
 
 from .composite.inpaint import mask_window
 from .config import FillConfig, FusionConfig
+from .screen import cross_strangers
 from .utils.distance import known_ring
 from .utils.resolution import config_px
 
@@ -61,6 +62,9 @@ class Fusion:
     method: str
     scores: tuple[float, ...] = ()  # per used reference (in the order given): mean score where it supplies
     window: tuple[slice, slice] = (slice(None), slice(None))
+    #: HxW bool: hole pixels where a reference's render was refused because the other references
+    #: covering them show something else there (None: nothing was).
+    refused_stranger: np.ndarray | None = None
 
     def supplied_fractions(self, hole: np.ndarray, n_references: int) -> list[float]:
         """Fraction of the hole each reference (in the order given) supplies."""
@@ -84,7 +88,10 @@ class Fusion:
         return f"{self.method}: {len(ks)} reference(s) supply {int(np.count_nonzero(labels))} px"
 
     def report(self) -> dict[str, Any]:
-        return {"method": self.method, "scores": list(self.scores)}
+        out: dict[str, Any] = {"method": self.method, "scores": list(self.scores)}
+        if self.refused_stranger is not None:
+            out["refused_stranger_px"] = int(np.count_nonzero(self.refused_stranger))
+        return out
 
 
 def fuse_references(
@@ -122,6 +129,22 @@ def fuse_references(
         logs, inconsistency = common_log_depth(refs, alphas, ring, rows, cols)
         scores *= geometry_factor(logs, hole_w, ring, fc)
         scores *= (0.5 ** (inconsistency / fc.ring_depth_scale)).astype(np.float32)[:, None, None]
+    refused = None
+    if fc.cross_strangers != "off" and cfg.screen.stranger_threshold > 0:
+        evidence = np.stack([_in_window(r.screened.refused_stranger, rows, cols) for r in refs])
+        # The renders as refined, before the screen: what the screen refused of one reference (a
+        # stranger) still contradicts another reference's different stranger at the same place.
+        found = cross_strangers(
+            np.stack([r.refined.image[rows, cols] for r in refs]).astype(np.float32),
+            np.stack([r.refined.alpha[rows, cols] for r in refs]),
+            hole_w, target[rows, cols], evidence, hole.shape, cfg.screen, fc.cross_strangers == "disputed",
+            scores, fc.candidate_ratio,
+        ) & alphas  # fmt: skip
+        if found.any():
+            alphas &= ~found
+            images[found] = 0
+            refused = np.zeros(hole.shape, bool)
+            refused[rows, cols] = found.any(axis=0)
     # Every covered pixel must pick a reference that covers it, however low its score.
     scores = np.where(alphas, np.maximum(scores, 1e-6), 0.0)
     best = scores.argmax(axis=0)
@@ -148,7 +171,15 @@ def fuse_references(
         float(scores[k][supplies[k]].mean()) if supplies[k].any() else 0.0
         for k in sorted(range(len(refs)), key=lambda k: index[k])
     )
-    return Fusion(image, alpha, labels, f"{fc.seams} of {len(refs)} references", mean_scores, (rows, cols))
+    method = f"{fc.seams} of {len(refs)} references"
+    return Fusion(image, alpha, labels, method, mean_scores, (rows, cols), refused)
+
+
+def _in_window(mask: np.ndarray | None, rows: slice, cols: slice) -> np.ndarray:
+    """``mask`` (HxW bool or None for none) in the window."""
+    if mask is None:
+        return np.zeros((rows.stop - rows.start, cols.stop - cols.start), bool)
+    return mask[rows, cols]
 
 
 def reference_score(
