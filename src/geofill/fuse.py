@@ -265,11 +265,11 @@ def common_log_depth(
 
     Each pair's depth has its own scale; the known ring around the hole is seen by the target and
     by every reference, so there two renders' depths differ by their scales' ratio only when both
-    pairs' geometry is right. A pair's inconsistency is the median over the others of the median
-    absolute deviation of the log ratio on the ring pixels both cover; each render is brought to
-    the scale of the most consistent one by the median log ratio (a render sharing too few ring
-    pixels with it keeps its own scale, offset by the ring medians of the two, and counts as
-    consistent: nothing measures it)."""
+    pairs' geometry is right. A render's inconsistency is the smallest, over the others, median
+    absolute deviation of the log ratio on the ring pixels both cover (one right partner is
+    enough). Each render is brought to the scale of the most consistent one by the median log
+    ratio (a render sharing too few ring pixels with it keeps its own scale, offset by the ring
+    medians of the two, and counts as consistent: nothing measures it)."""
     n = len(refs)
     logs = np.full(alphas.shape, np.nan, np.float32)
     for k, r in enumerate(refs):
@@ -288,7 +288,7 @@ def common_log_depth(
                 shift[j, k] = -m
                 spread[k, j] = spread[j, k] = float(np.median(np.abs(d - m)))
     measured = np.isfinite(spread).any(axis=1)
-    inconsistency = np.where(measured, np.nanmedian(np.where(measured[:, None], spread, np.nan), axis=1), 0.0)
+    inconsistency = np.where(measured, np.nanmin(np.where(measured[:, None], spread, np.nan), axis=1), 0.0)
     if not measured.any():
         return logs, np.zeros(n)
     c = int(np.argmin(np.where(measured, inconsistency, np.inf)))
@@ -333,19 +333,18 @@ def geometry_factor(logs: np.ndarray, hole: np.ndarray, ring: np.ndarray, cfg: F
 
 def _surroundings_log_depth(logs: np.ndarray, hole: np.ndarray, ring: np.ndarray) -> np.ndarray:
     """(H, W) log depth of the hole's surroundings: the references' median on the ring, carried into
-    the hole by OpenCV's Telea inpainting (which takes float32 images) at a quarter of the window."""
+    the hole by normalised Gaussian smoothing over a tenth of the window (each part of the hole gets
+    the depth of the ring nearest to it; far from any, the ring's overall median)."""
     on_ring = ring & np.isfinite(logs).any(axis=0)
     if not on_ring.any():
         return np.full(hole.shape, np.inf, np.float32)
-    median = np.full(hole.shape, np.nan, np.float32)
+    median = np.zeros(hole.shape, np.float32)
     median[on_ring] = np.nanmedian(logs[:, on_ring], axis=0)
-    h, w = hole.shape
-    size = (max(w // 4, 1), max(h // 4, 1))
-    known = cv2.resize(on_ring.astype(np.float32), size, interpolation=cv2.INTER_AREA)
-    total = cv2.resize(np.where(on_ring, median, 0.0).astype(np.float32), size, interpolation=cv2.INTER_AREA)
-    small = np.where(known > 0, total / np.maximum(known, 1e-6), 0.0).astype(np.float32)
-    filled = cv2.inpaint(small, (known <= 0).astype(np.uint8), 3, cv2.INPAINT_TELEA)
-    return cv2.resize(filled, (w, h), interpolation=cv2.INTER_LINEAR)
+    overall = float(np.median(median[on_ring]))
+    sigma = 0.1 * max(hole.shape)
+    w = on_ring.astype(np.float32)
+    eps = 1e-3
+    return (gaussian_blur(median * w, sigma) + eps * overall) / (gaussian_blur(w, sigma) + eps)
 
 
 def _window(refs: Sequence[ReferenceArtifacts], hole: np.ndarray) -> tuple[slice, slice]:

@@ -575,7 +575,9 @@ def _shifted_min_diff(render: np.ndarray, target: np.ndarray, k: int, reach_px: 
     for dy in range(-r, r + 1, step):
         for dx in range(-r, r + 1, step):
             shifted = padded[r + dy : r + dy + size[1], r + dx : r + dx + size[0]]
-            np.minimum(best, cv2.blur(np.abs(shifted - t_img).mean(axis=2), (ks, ks)), out=best)
+            d = np.abs(shifted - t_img)
+            # = d.mean(axis=2) to the bit (float32, summed in the same order), 3x faster
+            np.minimum(best, cv2.blur((d[..., 0] + d[..., 1] + d[..., 2]) / 3, (ks, ks)), out=best)
     return cv2.resize(best, (w, h), interpolation=cv2.INTER_LINEAR)
 
 
