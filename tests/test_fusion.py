@@ -219,3 +219,16 @@ def test_agreeing_references_are_averaged():
     )
     err = lambda f: float(np.abs(f.image[_HOLE].astype(float) - 100).mean())  # noqa: E731
     assert err(averaged) < 0.8 * err(single)  # three independent errors (1/sqrt(3) before rounding)
+
+
+def test_the_fuse_stages_refusals_are_reported_as_strangers():
+    from geofill.pipeline import FillReport, _refused_fractions
+
+    beside = np.zeros((_H, _W), bool)
+    beside[30:40, 40:60] = True  # what the screen stage refused in one reference
+    screened = SimpleNamespace(refused_object=None, refused_masked=None, refused_stranger=beside)
+    fusion = Fusion(None, None, np.zeros((_H, _W), np.int16), "test", refused_stranger=_DISC)
+    fractions = _refused_fractions(_HOLE, [SimpleNamespace(screened=screened)], fusion)
+    assert fractions == {"stranger": pytest.approx((_DISC.sum() + beside.sum()) / _HOLE.sum())}  # 0.36
+    words = FillReport(refused_fraction=fractions).refused_words()
+    assert words.startswith("36% of the hole was not copied because the references showed something there")

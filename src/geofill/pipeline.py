@@ -173,7 +173,9 @@ class FillReport:
     supplied_fraction: list[float] = field(default_factory=list)  # per reference, of the hole
     painted_fraction: float = 1.0  # of the hole, by single-image inpainting
     #: Of the hole, where a reference's render was not copied: ``removed_object`` (it showed what the
-    #: hole shows, the thing removed), ``masked`` (it came from pixels the user masked).
+    #: hole shows, the thing removed), ``masked`` (it came from pixels the user masked), ``stranger``
+    #: (it continued something the target does not show around the hole, or the other references
+    #: covering those pixels contradicted it).
     refused_fraction: dict[str, float] = field(default_factory=dict)
     fusion: dict[str, Any] = field(default_factory=dict)
     inpaint_method: str = ""
