@@ -9,6 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
+from geofill.camera import Intrinsics
 from geofill.composite.inpaint import mask_window
 from geofill.config import FillConfig
 from geofill.fuse import Fusion, fuse_references, gaussian_blur
@@ -85,3 +86,149 @@ def test_gaussian_blur_equals_opencvs_to_float_rounding(sigma):
     out = gaussian_blur(image, sigma)
     assert out.dtype == np.float32 and out.shape == image.shape
     np.testing.assert_allclose(out, ref, rtol=0, atol=1e-5 * ref.max())
+
+
+# Renders with known pixels and depths: a 120 x 160 target whose hole is a 60 x 80 box, every
+# reference covering the whole window (hole and known ring) with the target's background (grey 100)
+# unless told otherwise.
+_H, _W = 120, 160
+_HOLE = np.zeros((_H, _W), bool)
+_HOLE[30:90, 40:120] = True
+_DISC = np.zeros((_H, _W), bool)
+cv2.circle(_DISC.view(np.uint8), (80, 60), 22, 1, -1)
+
+
+def _reference(index: int, image: np.ndarray, depth: np.ndarray, refused_stranger=None):
+    """A usable reference whose refined and screened render are ``image`` (HxWx3 uint8, covering
+    the whole image) at target-camera ``depth`` (its pair's own scale)."""
+    alpha = np.ones((_H, _W), bool)
+    ys, xs = np.mgrid[0:_H, 0:_W].astype(np.float32)
+    render = RenderResult(xs, ys, depth.astype(np.float32), alpha, None)
+    refined = SimpleNamespace(image=image, alpha=alpha, render=render)
+    screened = SimpleNamespace(image=image, alpha=alpha, refused_stranger=refused_stranger)
+    K = Intrinsics(200.0, 200.0, _W / 2, _H / 2, _W, _H)
+    T = np.eye(4)
+    T[0, 3] = 0.1 * index  # the source camera beside the target's
+    geometry = SimpleNamespace(K_target=K, T=T)
+    source = np.full((_H, _W, 3), index, np.uint8)  # distinct content: the fuse stage sorts by it
+    return SimpleNamespace(index=index, source=source, refined=refined, screened=screened, geometry=geometry)
+
+
+def _grey(level: int) -> np.ndarray:
+    return np.full((_H, _W, 3), level, np.uint8)
+
+
+def _target() -> np.ndarray:
+    target = _grey(100)
+    target[_HOLE] = 0
+    return target
+
+
+def _hole_error(fusion) -> float:
+    """Largest difference (grey levels) between the fused hole and the background (100)."""
+    assert fusion.alpha[_HOLE].all()
+    return float(np.abs(fusion.image[_HOLE].astype(int) - 100).max())
+
+
+def test_references_agreeing_in_3d_win_over_a_near_surface_that_matches_the_ring_better():
+    # Two references show the background, slightly off on the ring (104: error 4, score x 0.25);
+    # the third matches the ring exactly but shows a near surface (a disc at half the depth of the
+    # surroundings) inside the hole. Each pair has its own depth scale (x1, x2, x3).
+    far = np.full((_H, _W), 10.0)
+    near = np.where(_DISC, 5.0, 10.0)
+    with_disc = _grey(100)
+    with_disc[_DISC] = 200
+    refs = [
+        _reference(1, _grey(104), far),
+        _reference(2, _grey(104), 2 * far),
+        _reference(3, with_disc, 3 * near),
+    ]
+    plain = FillConfig().updated(
+        {"fusion.consensus_scale": 255.0, "fusion.cross_strangers": "off", "fusion.feather_px": 0.0}
+    )
+    # Without the geometry the near surface scores best (it matches the ring): the disc is pasted.
+    pasted = fuse_references(_target(), _HOLE, refs, plain)
+    assert (pasted.image[_DISC] == 200).all()
+    fusion = fuse_references(_target(), _HOLE, refs, plain.updated({"fusion.geometry": True}))
+    assert _hole_error(fusion) <= 4
+    assert set(np.unique(fusion.labels[_DISC])) <= {1, 2}  # (the third supplies the rest: it fits best)
+
+
+def test_depth_scales_are_matched_on_the_known_ring():
+    from geofill.fuse import common_log_depth
+
+    ring = known_ring(_HOLE, 10.0)
+    refs = [_reference(k, _grey(100), s * np.where(_DISC, 5.0, 10.0)) for k, s in ((1, 1.0), (2, 4.0))]
+    alphas = np.ones((2, _H, _W), bool)
+    logs, inconsistency = common_log_depth(refs, alphas, ring, slice(0, _H), slice(0, _W))
+    np.testing.assert_allclose(logs[1], logs[0], atol=1e-5)  # both in one scale
+    np.testing.assert_allclose(inconsistency, [0.0, 0.0], atol=1e-6)
+    # A render whose depth on the ring does not follow the other's by one scale is inconsistent.
+    rng = np.random.default_rng(0)
+    refs.append(_reference(3, _grey(100), 10.0 * np.exp(rng.normal(0.0, 0.3, (_H, _W)))))
+    logs, inconsistency = common_log_depth(refs, np.ones((3, _H, _W), bool), ring, slice(0, _H), slice(0, _W))
+    assert inconsistency[2] > 0.15 > 0.05 > inconsistency[0]
+
+
+def test_a_stranger_outvoted_by_two_agreeing_references_is_refused():
+    # The third reference shows a stranger (a red disc) wholly inside the hole; it also matches the
+    # ring best (the others are 1 level off), so without the test it would be pasted.
+    stranger = _grey(100)
+    stranger[_DISC] = (200, 30, 30)
+    refs = [
+        _reference(1, _grey(101), np.full((_H, _W), 10.0)),
+        _reference(2, _grey(101), np.full((_H, _W), 20.0)),
+    ]
+    refs.append(_reference(3, stranger, np.full((_H, _W), 30.0)))
+    cfg = FillConfig().updated({"fusion.consensus_scale": 255.0})
+    off = fuse_references(_target(), _HOLE, refs, cfg.updated({"fusion.cross_strangers": "off"}))
+    assert (off.image[_DISC] == (200, 30, 30)).all() and off.refused_stranger is None
+    fusion = fuse_references(_target(), _HOLE, refs, cfg)
+    assert _hole_error(fusion) <= 4
+    refused = fusion.refused_stranger
+    assert refused[_DISC].mean() > 0.97  # the disc, and no more than a few pixels around it
+    assert refused.sum() < 1.15 * _DISC.sum()
+    assert fusion.report()["refused_stranger_px"] == int(refused.sum())
+
+
+def test_of_two_disagreeing_references_the_one_continuing_a_refused_stranger_is_refused():
+    # Two references; the first shows a stranger inside the hole that its own stranger test found
+    # reaching out of the hole just beside it (refused there: ``refused_stranger``).
+    stranger = _grey(100)
+    stranger[_DISC] = (30, 30, 200)
+    evidence = np.zeros((_H, _W), bool)
+    evidence[30:40, 70:90] = True  # the disc's top, by the hole's top edge
+    first = _reference(1, stranger, np.full((_H, _W), 10.0), refused_stranger=evidence & _HOLE)
+    second = _reference(2, _grey(101), np.full((_H, _W), 20.0))
+    fusion = fuse_references(_target(), _HOLE, [first, second], FillConfig())
+    assert _hole_error(fusion) <= 4
+    assert fusion.refused_stranger[_DISC].mean() > 0.97
+    # Without that evidence nothing says which one is the stranger: the scores choose (the first).
+    plain = _reference(1, stranger, np.full((_H, _W), 10.0))
+    chosen = fuse_references(_target(), _HOLE, [plain, second], FillConfig())
+    assert chosen.refused_stranger is None and (chosen.image[_DISC] == (30, 30, 200)).all()
+
+
+def test_agreeing_references_are_averaged():
+    rng = np.random.default_rng(3)
+    noise = [np.clip(100 + rng.normal(0, 6, (_H, _W, 3)), 0, 255).astype(np.uint8) for _ in range(3)]
+    refs = [_reference(k + 1, n, np.full((_H, _W), 10.0 * (k + 1))) for k, n in enumerate(noise)]
+    single = fuse_references(_target(), _HOLE, refs, FillConfig())
+    averaged = fuse_references(
+        _target(), _HOLE, refs, FillConfig().updated({"fusion.average_agreement": 20.0})
+    )
+    err = lambda f: float(np.abs(f.image[_HOLE].astype(float) - 100).mean())  # noqa: E731
+    assert err(averaged) < 0.8 * err(single)  # three independent errors (1/sqrt(3) before rounding)
+
+
+def test_the_fuse_stages_refusals_are_reported_as_strangers():
+    from geofill.pipeline import FillReport, _refused_fractions
+
+    beside = np.zeros((_H, _W), bool)
+    beside[30:40, 40:60] = True  # what the screen stage refused in one reference
+    screened = SimpleNamespace(refused_object=None, refused_masked=None, refused_stranger=beside)
+    fusion = Fusion(None, None, np.zeros((_H, _W), np.int16), "test", refused_stranger=_DISC)
+    fractions = _refused_fractions(_HOLE, [SimpleNamespace(screened=screened)], fusion)
+    assert fractions == {"stranger": pytest.approx((_DISC.sum() + beside.sum()) / _HOLE.sum())}  # 0.36
+    words = FillReport(refused_fraction=fractions).refused_words()
+    assert words.startswith("36% of the hole was not copied because the references showed something there")

@@ -752,6 +752,54 @@ class FusionConfig:
         "A reference's candidate region keeps the pixels whose score is at least this fraction of the best "
         "reference's there (the seam is searched only inside such overlaps).",
     )
+    cross_strangers: Literal["off", "decided", "disputed"] = setting(
+        "decided",
+        "Refuse a reference's render where it shows what the other references covering the same hole pixels "
+        'do not (a stranger inside the hole\'s footprint). "decided": where it is outvoted (three or more '
+        "cover) or, where two cover, where the stranger test's refusals nearby or the colours of the hole's "
+        'surroundings say which one is the stranger; "disputed": also every reference that disagrees with '
+        'all the others covering a pixel when nothing decides (the pixel is then painted); "off". Uses the '
+        "``screen.stranger_*`` settings; ``screen.stranger_threshold=0`` turns it off too.",
+    )
+    geometry: bool = setting(
+        False,
+        "Weigh the references by where their surfaces lie in 3D: each render's depth is brought to one "
+        "scale on the known ring around the hole; where references covering a hole pixel disagree, the "
+        "ones whose surfaces agree with others' are preferred (``agreement_gain``) and a surface nearer "
+        "than the hole's surroundings loses to one that is not (``near_penalty``).",
+    )
+    ring_depth_scale: Annotated[float, Range(0, 10, lo_open=True)] = setting(
+        0.1,
+        "A reference's score halves at this depth inconsistency on the known ring (median absolute deviation "
+        "of the log ratio of its render's depth to the others' there, where every pair sees the same "
+        "surface): a wrong pose or depth shows there.",
+    )
+    depth_agreement: Annotated[float, Range(0, 10, lo_open=True)] = setting(
+        0.05,
+        "Two references' surfaces agree at a pixel when their depths (in the common scale) differ by less "
+        "than this (log ratio: 0.05 is 5 %).",
+    )
+    agreement_gain: Annotated[float, Range(1, 100)] = setting(
+        2.0,
+        "Where references disagree in 3D, a reference's score is multiplied by this per other reference "
+        "whose surface agrees with its own (relative to the best-supported reference there).",
+    )
+    near_margin: Annotated[float, Range(0, 10)] = setting(
+        0.1,
+        "A surface is near when its depth is below the hole's surroundings' (the ring's depth carried into "
+        "the hole) by more than this (log ratio).",
+    )
+    near_penalty: Annotated[float, Range(0, 1)] = setting(
+        0.25,
+        "Score factor of a near surface where another reference shows one that is not near (1: no "
+        "preference).",
+    )
+    average_agreement: Annotated[float, Range(0, 255)] = setting(
+        0.0,
+        "``feather``/``graphcut``: the references that agree with a pixel's winner (colours within this "
+        "mean absolute difference, 0-255, over a 5-px box; score within ``candidate_ratio``; surfaces within "
+        "``depth_agreement`` with ``geometry``) are averaged with it. 0: the winner alone.",
+    )
     parallel: Annotated[int, Range(1, 64)] = setting(
         2,
         "References processed at once (threads); 1 runs them one after the other. 2 on 2 cores: three "

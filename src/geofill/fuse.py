@@ -33,6 +33,7 @@ import numpy as np
 
 from .composite.inpaint import mask_window
 from .config import FillConfig, FusionConfig
+from .screen import cross_strangers
 from .utils.distance import known_ring
 from .utils.resolution import config_px
 
@@ -43,6 +44,8 @@ if TYPE_CHECKING:
 _SEAM_MAX_SIDE = 640
 #: Gaussian kernels from this many taps on are applied in the Fourier domain (see gaussian_blur).
 _DFT_BLUR_TAPS = 160
+#: Ring pixels two renders must both cover for their depth scales to be compared pixel by pixel.
+_MIN_RING_DEPTH_PX = 50
 
 
 @dataclass(frozen=True)
@@ -59,6 +62,9 @@ class Fusion:
     method: str
     scores: tuple[float, ...] = ()  # per used reference (in the order given): mean score where it supplies
     window: tuple[slice, slice] = (slice(None), slice(None))
+    #: HxW bool: hole pixels where a reference's render was refused because the other references
+    #: covering them show something else there (None: nothing was).
+    refused_stranger: np.ndarray | None = None
 
     def supplied_fractions(self, hole: np.ndarray, n_references: int) -> list[float]:
         """Fraction of the hole each reference (in the order given) supplies."""
@@ -82,7 +88,10 @@ class Fusion:
         return f"{self.method}: {len(ks)} reference(s) supply {int(np.count_nonzero(labels))} px"
 
     def report(self) -> dict[str, Any]:
-        return {"method": self.method, "scores": list(self.scores)}
+        out: dict[str, Any] = {"method": self.method, "scores": list(self.scores)}
+        if self.refused_stranger is not None:
+            out["refused_stranger_px"] = int(np.count_nonzero(self.refused_stranger))
+        return out
 
 
 def fuse_references(
@@ -116,6 +125,26 @@ def fuse_references(
         ]
     )
     scores *= _consensus(images, alphas, fc.consensus_scale)
+    if fc.geometry:
+        logs, inconsistency = common_log_depth(refs, alphas, ring, rows, cols)
+        scores *= geometry_factor(logs, hole_w, ring, fc)
+        scores *= (0.5 ** (inconsistency / fc.ring_depth_scale)).astype(np.float32)[:, None, None]
+    refused = None
+    if fc.cross_strangers != "off" and cfg.screen.stranger_threshold > 0:
+        evidence = np.stack([_in_window(r.screened.refused_stranger, rows, cols) for r in refs])
+        # The renders as refined, before the screen: what the screen refused of one reference (a
+        # stranger) still contradicts another reference's different stranger at the same place.
+        found = cross_strangers(
+            np.stack([r.refined.image[rows, cols] for r in refs]).astype(np.float32),
+            np.stack([r.refined.alpha[rows, cols] for r in refs]),
+            hole_w, target[rows, cols], evidence, hole.shape, cfg.screen, fc.cross_strangers == "disputed",
+            scores, fc.candidate_ratio,
+        ) & alphas  # fmt: skip
+        if found.any():
+            alphas &= ~found
+            images[found] = 0
+            refused = np.zeros(hole.shape, bool)
+            refused[rows, cols] = found.any(axis=0)
     # Every covered pixel must pick a reference that covers it, however low its score.
     scores = np.where(alphas, np.maximum(scores, 1e-6), 0.0)
     best = scores.argmax(axis=0)
@@ -126,7 +155,10 @@ def fuse_references(
         weights = scores**fc.blend_power
         weights /= np.maximum(weights.sum(axis=0), 1e-12)[None]
     else:
-        weights = _feathered_weights(best, alphas, covered, config_px(fc.feather_px, hole.shape))
+        members = best[None] == np.arange(len(refs))[:, None, None]
+        if fc.average_agreement > 0:
+            members |= _agreeing(images, alphas, scores, best, logs if fc.geometry else None, hole.shape, fc)
+        weights = _feathered_weights(members, alphas, covered, config_px(fc.feather_px, hole.shape))
     fused_w = np.rint(np.einsum("khw,khwc->hwc", weights, images)).clip(0, 255).astype(np.uint8)
     image = np.zeros(target.shape, target.dtype)  # calloc: the pages outside the window stay untouched
     image[rows, cols] = fused_w
@@ -139,7 +171,15 @@ def fuse_references(
         float(scores[k][supplies[k]].mean()) if supplies[k].any() else 0.0
         for k in sorted(range(len(refs)), key=lambda k: index[k])
     )
-    return Fusion(image, alpha, labels, f"{fc.seams} of {len(refs)} references", mean_scores, (rows, cols))
+    method = f"{fc.seams} of {len(refs)} references"
+    return Fusion(image, alpha, labels, method, mean_scores, (rows, cols), refused)
+
+
+def _in_window(mask: np.ndarray | None, rows: slice, cols: slice) -> np.ndarray:
+    """``mask`` (HxW bool or None for none) in the window."""
+    if mask is None:
+        return np.zeros((rows.stop - rows.start, cols.stop - cols.start), bool)
+    return mask[rows, cols]
 
 
 def reference_score(
@@ -217,6 +257,96 @@ def _consensus(images: np.ndarray, alphas: np.ndarray, scale: float) -> np.ndarr
     return out
 
 
+def common_log_depth(
+    refs: Sequence[ReferenceArtifacts], alphas: np.ndarray, ring: np.ndarray, rows: slice, cols: slice
+) -> tuple[np.ndarray, np.ndarray]:
+    """(K, H, W) float32 log of each render's depth in the window, all in one scale (NaN where a
+    render has none), and (K,) each render's depth inconsistency on the ring (log ratio).
+
+    Each pair's depth has its own scale; the known ring around the hole is seen by the target and
+    by every reference, so there two renders' depths differ by their scales' ratio only when both
+    pairs' geometry is right. A render's inconsistency is the smallest, over the others, median
+    absolute deviation of the log ratio on the ring pixels both cover (one right partner is
+    enough). Each render is brought to the scale of the most consistent one by the median log
+    ratio (a render sharing too few ring pixels with it keeps its own scale, offset by the ring
+    medians of the two, and counts as consistent: nothing measures it)."""
+    n = len(refs)
+    logs = np.full(alphas.shape, np.nan, np.float32)
+    for k, r in enumerate(refs):
+        z = r.refined.render.depth[rows, cols]
+        ok = alphas[k] & np.isfinite(z) & (z > 0)
+        logs[k][ok] = np.log(z[ok])
+    valid = np.isfinite(logs) & ring[None]
+    shift = np.full((n, n), np.nan)
+    spread = np.full((n, n), np.nan)
+    for k in range(n):
+        for j in range(k + 1, n):
+            both = valid[k] & valid[j]
+            if both.sum() >= _MIN_RING_DEPTH_PX:
+                d = logs[j][both] - logs[k][both]
+                shift[k, j] = m = float(np.median(d))
+                shift[j, k] = -m
+                spread[k, j] = spread[j, k] = float(np.median(np.abs(d - m)))
+    measured = np.isfinite(spread).any(axis=1)
+    inconsistency = np.where(measured, np.nanmin(np.where(measured[:, None], spread, np.nan), axis=1), 0.0)
+    if not measured.any():
+        return logs, np.zeros(n)
+    c = int(np.argmin(np.where(measured, inconsistency, np.inf)))
+    for k in range(n):
+        if np.isfinite(shift[k, c]):
+            logs[k] += shift[k, c]
+        elif valid[k].any() and valid[c].any():
+            logs[k] += np.median(logs[c][valid[c]]) - np.median(logs[k][valid[k]])
+    return logs, inconsistency
+
+
+def geometry_factor(logs: np.ndarray, hole: np.ndarray, ring: np.ndarray, cfg: FusionConfig) -> np.ndarray:
+    """(K, H, W) factor on the references' scores from where their surfaces lie in 3D (``logs``:
+    :func:`common_log_depth`). Where two or more cover a hole pixel and not all their surfaces agree
+    (log depths within ``depth_agreement``), each score is multiplied by ``agreement_gain`` per
+    other reference whose surface agrees with its own, relative to the best-supported one there;
+    and a surface nearer than the hole's surroundings (the ring's depth interpolated into the hole)
+    by more than ``near_margin`` loses ``near_penalty`` where another reference shows a surface
+    that is not. 1 elsewhere."""
+    out = np.ones(logs.shape, np.float32)
+    valid = np.isfinite(logs)
+    many = hole & (valid.sum(axis=0) >= 2)
+    if not many.any():
+        return out
+    lv = logs[:, many]  # (K, N)
+    ok = valid[:, many]
+    diff = np.abs(lv[:, None] - lv[None])  # (K, K, N)
+    agree = (diff < cfg.depth_agreement) & ok[:, None] & ok[None]
+    support = agree.sum(axis=1) - 1  # others agreeing with each (itself excluded)
+    support = np.where(ok, support, -1)
+    disputed = (support < ok.sum(axis=0) - 1).any(axis=0)  # some pair disagrees
+    top = support.max(axis=0)
+    f = np.where(disputed[None] & ok, cfg.agreement_gain ** (support - top[None]).astype(np.float32), 1.0)
+    if cfg.near_penalty < 1.0:
+        surround = _surroundings_log_depth(logs, hole, ring)[many]
+        near = ok & (lv < surround[None] - cfg.near_margin)
+        other = (ok & ~near).any(axis=0)
+        f = np.where(near & other[None], f * cfg.near_penalty, f)
+    out[:, many] = f
+    return out
+
+
+def _surroundings_log_depth(logs: np.ndarray, hole: np.ndarray, ring: np.ndarray) -> np.ndarray:
+    """(H, W) log depth of the hole's surroundings: the references' median on the ring, carried into
+    the hole by normalised Gaussian smoothing over a tenth of the window (each part of the hole gets
+    the depth of the ring nearest to it; far from any, the ring's overall median)."""
+    on_ring = ring & np.isfinite(logs).any(axis=0)
+    if not on_ring.any():
+        return np.full(hole.shape, np.inf, np.float32)
+    median = np.zeros(hole.shape, np.float32)
+    median[on_ring] = np.nanmedian(logs[:, on_ring], axis=0)
+    overall = float(np.median(median[on_ring]))
+    sigma = 0.1 * max(hole.shape)
+    w = on_ring.astype(np.float32)
+    eps = 1e-3
+    return (gaussian_blur(median * w, sigma) + eps * overall) / (gaussian_blur(w, sigma) + eps)
+
+
 def _window(refs: Sequence[ReferenceArtifacts], hole: np.ndarray) -> tuple[slice, slice]:
     """The smallest window holding the hole and every reference's render window (the pipeline's
     render windows hold the hole already)."""
@@ -289,21 +419,54 @@ def _graphcut_labels(
     return out
 
 
-def _feathered_weights(
-    best: np.ndarray, alphas: np.ndarray, covered: np.ndarray, feather_px: float
+def _agreeing(
+    images: np.ndarray,
+    alphas: np.ndarray,
+    scores: np.ndarray,
+    best: np.ndarray,
+    logs: np.ndarray | None,
+    shape: tuple[int, int],
+    cfg: FusionConfig,
 ) -> np.ndarray:
-    """(K, H, W) float32 blending weights: each reference's region blurred over ``feather_px``,
-    restricted to where it has a render, normalised to sum to 1 where any reference covers."""
-    onehot = np.stack([(best == k) & covered for k in range(len(alphas))]).astype(np.float32)
+    """(K, H, W) bool: the references that agree with the winner ``best`` at each pixel, and are
+    averaged with it: they cover the pixel, score at least ``candidate_ratio`` of the winner, their
+    colours differ from the winner's by less than ``average_agreement`` (mean absolute difference
+    over a 5-px box, 0-255) and, with ``logs`` (:func:`common_log_depth`), their surfaces lie within
+    ``depth_agreement`` of the winner's. Averaging renders that agree cancels their independent
+    errors (resampling, colour correction, small misalignment)."""
+    take = lambda a: np.take_along_axis(a, best[None], 0)[0]  # noqa: E731 - the winner's value
+    win = np.take_along_axis(images, best[None, ..., None], 0)[0]
+    k = _odd_px(5.0 * config_px(1.0, shape))
+    out = alphas & (scores >= cfg.candidate_ratio * take(scores)[None])
+    for j in range(len(images)):
+        if out[j].any():
+            diff = cv2.blur(np.abs(images[j] - win).mean(axis=2), (k, k))
+            out[j] &= diff < cfg.average_agreement
+    if logs is not None:
+        with np.errstate(invalid="ignore"):
+            out &= ~(np.abs(logs - take(logs)[None]) >= cfg.depth_agreement)
+    return out
+
+
+def _odd_px(px: float) -> int:
+    return max(1, round(px) // 2 * 2 + 1)
+
+
+def _feathered_weights(
+    members: np.ndarray, alphas: np.ndarray, covered: np.ndarray, feather_px: float
+) -> np.ndarray:
+    """(K, H, W) float32 blending weights: each reference's region ``members`` (K, H, W bool; the
+    regions may overlap, and are then averaged) blurred over ``feather_px``, restricted to where it
+    has a render, normalised to sum to 1 where any reference covers."""
+    onehot = (members & covered[None]).astype(np.float32)
     if feather_px > 0:
         sigma = feather_px / 2.0
         onehot = np.stack([cv2.GaussianBlur(o, (0, 0), sigma) for o in onehot])
     onehot *= alphas
     total = onehot.sum(axis=0)
-    # Where blurring left no weight on a covered pixel (a thin region), fall back to its winner.
+    # Where blurring left no weight on a covered pixel (a thin region), fall back to its members.
     empty = covered & (total <= 1e-6)
     if empty.any():
-        for k in range(len(alphas)):
-            onehot[k][empty & (best == k)] = 1.0
+        onehot[:, empty] = members[:, empty]
         total = onehot.sum(axis=0)
     return onehot / np.maximum(total, 1e-6)[None]

@@ -176,7 +176,9 @@ class FillReport:
     supplied_fraction: list[float] = field(default_factory=list)  # per reference, of the hole
     painted_fraction: float = 1.0  # of the hole, by single-image inpainting
     #: Of the hole, where a reference's render was not copied: ``removed_object`` (it showed what the
-    #: hole shows, the thing removed), ``masked`` (it came from pixels the user masked).
+    #: hole shows, the thing removed), ``masked`` (it came from pixels the user masked), ``stranger``
+    #: (it continued something the target does not show around the hole, or the other references
+    #: covering those pixels contradicted it).
     refused_fraction: dict[str, float] = field(default_factory=dict)
     fusion: dict[str, Any] = field(default_factory=dict)
     #: With several references: per reference, its scale in the common frame and how much of its
@@ -580,8 +582,9 @@ def composite(ctx: FillContext, fusion: Fusion) -> np.ndarray:
     return merge_fill(ctx.target, ctx.hole, fusion.image, fusion.alpha, ctx.inpainter, feather)
 
 
-def _refused_fractions(hole: np.ndarray, used: list[ReferenceArtifacts]) -> dict[str, float]:
-    """Of the hole, where any reference's render was refused, per reason."""
+def _refused_fractions(hole: np.ndarray, used: list[ReferenceArtifacts], fusion: Fusion) -> dict[str, float]:
+    """Of the hole, where any reference's render was refused, per reason (the fuse stage's refusals
+    of a reference the others contradict count as strangers)."""
     out = {}
     for key, name in (
         ("removed_object", "refused_object"),
@@ -589,6 +592,8 @@ def _refused_fractions(hole: np.ndarray, used: list[ReferenceArtifacts]) -> dict
         ("stranger", "refused_stranger"),
     ):
         masks = [getattr(r.screened, name) for r in used if getattr(r.screened, name) is not None]
+        if name == "refused_stranger" and fusion.refused_stranger is not None:
+            masks.append(fusion.refused_stranger)
         if masks:
             out[key] = float(np.count_nonzero(np.logical_or.reduce(masks) & hole)) / max(int(hole.sum()), 1)
     return out
@@ -615,7 +620,7 @@ def _report(ctx: FillContext, refs: list[ReferenceArtifacts], fusion: Fusion, pr
         references=[r.report() for r in refs],
         supplied_fraction=supplied,
         painted_fraction=1.0 - float(sum(supplied)),
-        refused_fraction=_refused_fractions(ctx.hole, used),
+        refused_fraction=_refused_fractions(ctx.hole, used, fusion),
         fusion=fusion.report(),
         inpaint_method=ctx.inpainter.description,
         depth_choice=ctx.depth_choice.reason,
