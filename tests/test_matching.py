@@ -165,6 +165,34 @@ def test_sift_pair_in_two_threads_equals_one_after_the_other(wide: SyntheticPair
         np.testing.assert_array_equal(got.desc, want.desc)
 
 
+def test_references_of_one_target_share_its_sift_features(wide: SyntheticPair, monkeypatch) -> None:
+    """Four references matched in parallel threads against one target: the target's SIFT runs
+    once (the others wait for it), each source once, and every result equals its own detection."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    import geofill.match.features as features
+
+    grays_t = to_gray_u8(wide.target)
+    mask_t = keypoint_mask(wide.hole, 8.0)
+    sources = [to_gray_u8(np.roll(wide.source, 7 * k, axis=1)) for k in range(4)]
+    calls: list[int] = []
+    detect = features.detect_sift
+    monkeypatch.setattr(features, "_targets", type(features._targets)())  # nothing cached by other tests
+    monkeypatch.setattr(features, "detect_sift", lambda g, *a: calls.append(id(g)) or detect(g, *a))
+    with ThreadPoolExecutor(2) as pool:
+        pairs = list(pool.map(lambda s: detect_sift_pair((grays_t, s), 0, (mask_t, None)), sources))
+    assert calls.count(id(grays_t)) == 1
+    assert len(calls) == 5
+    want_t = detect(grays_t, 0, mask_t)
+    for (got_t, got_s), s in zip(pairs, sources, strict=True):
+        np.testing.assert_array_equal(got_t.pts, want_t.pts)
+        np.testing.assert_array_equal(got_t.desc, want_t.desc)
+        np.testing.assert_array_equal(got_s.pts, detect(s, 0, None).pts)
+    # Another mask of the same target is another target.
+    detect_sift_pair((grays_t, sources[0]), 0, (np.zeros_like(mask_t), None))
+    assert calls.count(id(grays_t)) == 2
+
+
 @pytest.mark.parametrize(
     "pts",
     [
