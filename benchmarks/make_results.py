@@ -93,8 +93,10 @@ SECTIONS = [
         "Object removal, strangers in the references (`geofill eval --protocol strangers`)",
         "Cutouts pasted into the references over 30-60 % of where the hole's background appears in them; "
         "the target's hole shows another cutout. The screen stage refuses the render content that continues "
-        "a stranger reaching beyond the hole (where the render disagrees with the target around it); a "
-        "stranger wholly inside the hole's footprint is not caught (docs/architecture.md).",
+        "a stranger reaching beyond the hole (where the render disagrees with the target around it), and the "
+        "fuse stage refuses a reference the others covering the same pixels contradict; a stranger "
+        "wholly inside the hole's footprint that no other reference contradicts is not caught "
+        "(docs/architecture.md).",
         _eval(
             "{out}",
             "--protocol",
