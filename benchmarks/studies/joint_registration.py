@@ -4,7 +4,7 @@ ground-truth poses.
 
     <venv with pycolmap>/bin/python benchmarks/studies/joint_registration.py [--seed 0] [--set KEY=VALUE ...]
 
-pycolmap is not a geofill dependency (its wheel is 60+ MB and its dense stereo needs CUDA): run
+pycolmap is not a geofill dependency (135 MB installed, and its dense stereo needs CUDA): run
 this in a separate venv, ``pip install pycolmap==4.2.1`` next to geofill. Per set: the target with
 the evaluation's stroke hole (``--seed``) masked out for COLMAP's features and blanked for
 geofill's, every reference as is. COLMAP: one camera for all images (SIMPLE_RADIAL, focal
