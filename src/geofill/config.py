@@ -12,7 +12,8 @@ Sections follow the pipeline, but some are read by more than one stage. Which st
   screen: ``screen``;
 - fuse: ``fusion`` and ``refine.band_px`` (its known ring); composite: ``inpaint`` and
   ``refine.feather_px``;
-- multi-view depth (several references, after optimize): ``multiview``;
+- multi-view depth (several references, after optimize): ``multiview``; joint registration
+  (several references, after match): ``registration``;
 - the reference runner: ``fusion.parallel``; the input checks: the top-level limits; the progress:
   ``time_budget_s``; the batch's reference picker: ``matching`` and ``geometry.min_inliers``.
 
@@ -808,6 +809,19 @@ class FusionConfig:
 
 
 @dataclass
+class RegistrationConfig:
+    """How the cameras are registered with several references."""
+
+    joint: Literal["off", "auto"] = setting(
+        "off",
+        "auto: with two or more references and pycolmap importable, register the target and every "
+        "reference together (COLMAP's incremental SfM with bundle adjustment, the hole masked) and use "
+        "its focal and pose for each reference it registers; the others keep the per-pair stages. "
+        "off: per-pair registration only.",
+    )
+
+
+@dataclass
 class MultiViewConfig:
     """With several references: each one's depth behind the hole measured from the others
     (:mod:`geofill.multiview`), after every reference has its geometry. A single reference never
@@ -941,6 +955,7 @@ class FillConfig:
     fusion: FusionConfig = field(default_factory=FusionConfig)
     screen: ScreenConfig = field(default_factory=ScreenConfig)
     multiview: MultiViewConfig = field(default_factory=MultiViewConfig)
+    registration: RegistrationConfig = field(default_factory=RegistrationConfig)
     working_max_side: Annotated[int, Range(64, 16384)] = setting(
         1280,
         "Geometry (matching, pose, depth, optimisation) runs with the long side capped at this (px); "

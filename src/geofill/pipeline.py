@@ -39,6 +39,8 @@ from .focal import FocalEstimate, estimate_focal, shared_estimate, shared_focal_
 from .fuse import Fusion, fuse_references
 from .intrinsics import ExifLens
 from .io import LoadedImage, as_rgb_uint8, as_source_mask, validate_pair
+from .joint import available as joint_available
+from .joint import joint_focal, joint_pose, register_jointly
 from .match import Matches, match_pair
 from .multiview import MultiViewDepth, ViewGeometry, multiview_depth
 from .optimize.stage import Geometry, optimize_geometry
@@ -447,7 +449,8 @@ def fill(
     started = prog.wall_s()
     shared_step = len(images) > 1  # at most one "shared focal" stage
     mv_step = len(images) > 1 and cfg.multiview.depth  # at most one "multi-view depth" stage
-    prog.plan(1 + len(images) * len(REFERENCE_STAGES) + shared_step + mv_step + 2)
+    joint_step = len(images) > 1 and cfg.registration.joint == "auto"  # at most one "joint registration"
+    prog.plan(1 + len(images) * len(REFERENCE_STAGES) + shared_step + joint_step + mv_step + 2)
     with prog.stage("check inputs"):
         ctx = prepare_fill(target, mask, images, cfg, target_exif, prog.say, prog.detail)
     refs = []
@@ -464,6 +467,13 @@ def fill(
         prog.advance(sum(r.focal is not None for r in refs))  # their focal stage will not run
     else:
         prog.advance(shared_step)
+    if joint_step:
+        refs = _run_references(ctx, refs, prog, until="match")
+        with prog.stage("joint registration") as notes:
+            before = sum((r.focal is None) + (r.pose is None) for r in refs)
+            refs, words = joint_registration(ctx, refs)
+            notes.append(words)
+        prog.advance(before - sum((r.focal is None) + (r.pose is None) for r in refs))  # stages not run
     multiview = None
     if mv_step:
         refs = _run_references(ctx, refs, prog, until="optimize")
@@ -539,6 +549,33 @@ def shared_focal(refs: list[ReferenceArtifacts], cfg: FillConfig) -> list[Refere
         else r
         for r in refs
     ]
+
+
+def joint_registration(
+    ctx: FillContext, refs: list[ReferenceArtifacts]
+) -> tuple[list[ReferenceArtifacts], str]:
+    """Every matched reference that the joint registration (:mod:`geofill.joint`) places together
+    with the target given its focal and pose (their focal and pose stages then do not run); the
+    others keep the per-pair stages. Also the line saying what happened."""
+    if not joint_available():
+        return refs, "pycolmap is not importable (pip install pycolmap): per-pair registration"
+    cams = register_jointly(ctx.target, ctx.hole, [r.source for r in refs])
+    out, placed = [], []
+    w_t = ctx.target.shape[1]
+    for r, cam in zip(refs, cams, strict=True):
+        if cam is None or r.matches is None or r.dropped:
+            out.append(r)
+            continue
+        focal = joint_focal(cam, r.views.K_target, r.views.K_source, w_t, r.source.shape[1])
+        pose = joint_pose(cam, r.matches, focal.K_target, focal.K_source, r.views.ransac_px, ctx.cfg.geometry)
+        if pose is None:
+            out.append(r)
+            continue
+        out.append(replace(r, focal=focal, pose=pose))
+        placed.append(r.index)
+    if not placed:
+        return out, "COLMAP registered no reference with the target: per-pair registration"
+    return out, f"COLMAP registered reference(s) {', '.join(map(str, placed))} of {len(refs)} with the target"
 
 
 def multiview_step(

@@ -1,0 +1,142 @@
+"""One registration for the target and all references (COLMAP's incremental SfM with bundle
+adjustment, through pycolmap), an optional alternative to the per-pair focal and pose stages.
+
+Every image's camera lands in one frame and the intrinsics are refined together over tracks that
+span several views, which per-pair two-view geometry cannot do: on the posed multi-reference sets
+it registers every reference to 0.17-0.72 deg and the focal to 1-1.4 %, where the per-pair stages
+err by up to 20 deg and -44..+16 % (``benchmarks/studies/joint_registration.py``). Where it
+registers nothing (the Kinect living room) or leaves out the target or a reference, that
+reference keeps the per-pair path. Needs ``pip install pycolmap`` (CPU SfM; not a geofill extra yet).
+"""
+
+from __future__ import annotations
+
+import tempfile
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from .camera import Intrinsics, make_pose
+from .config import GeometryConfig
+from .focal import FocalEstimate
+from .match import Matches
+from .pose import PoseEstimate, normalise, parallax_deg
+
+
+@dataclass(frozen=True)
+class JointCamera:
+    """One reference as the joint registration left it (input pixels)."""
+
+    T: np.ndarray  # 4x4 source->target, COLMAP's scale (shared by all references of the model)
+    focal_target: float
+    focal_source: float
+
+
+def available() -> bool:
+    """Whether pycolmap can be imported."""
+    try:
+        import pycolmap  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def register_jointly(
+    target: np.ndarray, hole: np.ndarray, sources: Sequence[np.ndarray]
+) -> list[JointCamera | None]:
+    """COLMAP's registration of ``target`` (its ``hole`` masked out for the features) and every
+    source: one entry per source, None where the target or that source is not in the largest model.
+    One shared camera when every image has the same size."""
+    import pycolmap
+
+    with tempfile.TemporaryDirectory(prefix="geofill-joint-") as tmp:
+        work = Path(tmp)
+        images, masks = work / "images", work / "masks"
+        images.mkdir()
+        masks.mkdir()
+        names = ["target.png"] + [f"source{k}.png" for k in range(len(sources))]
+        for name, img in zip(names, [target, *sources], strict=True):
+            cv2.imwrite(str(images / name), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
+            keep = ~hole if name == "target.png" else np.ones(img.shape[:2], bool)
+            cv2.imwrite(str(masks / f"{name}.png"), keep.astype(np.uint8) * 255)  # COLMAP: 0 = ignored
+        same = len({img.shape[:2] for img in [target, *sources]}) == 1
+        reader = pycolmap.ImageReaderOptions()
+        reader.camera_model = "SIMPLE_RADIAL"
+        reader.mask_path = str(masks)
+        mode = pycolmap.CameraMode.SINGLE if same else pycolmap.CameraMode.PER_IMAGE
+        db = work / "db.db"
+        pycolmap.extract_features(db, images, camera_mode=mode, reader_options=reader)
+        pycolmap.match_exhaustive(db)
+        maps = pycolmap.incremental_mapping(db, images, work / "sparse")
+    none: list[JointCamera | None] = [None] * len(sources)
+    if not maps:
+        return none
+    rec = max(maps.values(), key=lambda r: r.num_reg_images())
+    by_name = {img.name: img for img in rec.images.values()}
+    if "target.png" not in by_name:
+        return none
+
+    def world_to_cam(img) -> np.ndarray:
+        m = np.eye(4)
+        m[:3] = img.cam_from_world().matrix()
+        return m
+
+    t = by_name["target.png"]
+    w_t = world_to_cam(t)
+    f_t = float(rec.cameras[t.camera_id].params[0])
+    out = []
+    for name in names[1:]:
+        img = by_name.get(name)
+        if img is None:
+            out.append(None)
+            continue
+        T = w_t @ np.linalg.inv(world_to_cam(img))
+        out.append(JointCamera(T, f_t, float(rec.cameras[img.camera_id].params[0])))
+    return out
+
+
+def joint_focal(cam: JointCamera, K_t: Intrinsics, K_s: Intrinsics, target_width: int, source_width: int):
+    """The focal stage's result from the joint registration (``K_t``/``K_s``: the working priors)."""
+    K_t_new = replace(K_t, fx=cam.focal_target * K_t.width / target_width, origin="estimated")
+    K_t_new = replace(K_t_new, fy=K_t_new.fx, rel_uncertainty=None)
+    K_s_new = replace(K_s, fx=cam.focal_source * K_s.width / source_width, origin="estimated")
+    K_s_new = replace(K_s_new, fy=K_s_new.fx, rel_uncertainty=None)
+    return FocalEstimate(K_t_new, K_s_new, "estimated", "joint", "", K_t, K_s, [])
+
+
+def joint_pose(
+    cam: JointCamera, matches: Matches, K_t: Intrinsics, K_s: Intrinsics, thr_px: float, cfg: GeometryConfig
+) -> PoseEstimate | None:
+    """The pose stage's result from the joint registration: translation to unit norm, inliers =
+    the pair's matches within ``thr_px`` (Sampson) of its epipolar geometry and in front of both
+    cameras. None when too few agree (then the per-pair pose runs)."""
+    R, t = cam.T[:3, :3], cam.T[:3, 3]
+    norm = float(np.linalg.norm(t))
+    if norm < 1e-12 or len(matches) == 0:
+        return None
+    t = t / norm
+    x_s, x_t = normalise(matches.pts_source, K_s), normalise(matches.pts_target, K_t)
+    h_s = np.column_stack([x_s, np.ones(len(x_s))])
+    h_t = np.column_stack([x_t, np.ones(len(x_t))])
+    tx = np.array([[0.0, -t[2], t[1]], [t[2], 0.0, -t[0]], [-t[1], t[0], 0.0]])
+    E = tx @ R
+    Ex, Etx = h_s @ E.T, h_t @ E
+    num = np.sum(h_t * Ex, axis=1) ** 2
+    sampson = num / (Ex[:, 0] ** 2 + Ex[:, 1] ** 2 + Etx[:, 0] ** 2 + Etx[:, 1] ** 2 + 1e-300)
+    focal = 0.5 * (K_t.fx + K_s.fx)
+    close = sampson < (thr_px / focal) ** 2
+    X = cv2.triangulatePoints(np.eye(3, 4), np.column_stack([R, t]), x_s.T, x_t.T)
+    X = X[:3] / np.where(np.abs(X[3]) < 1e-12, 1e-12, X[3])
+    front = (X[2] > 0) & ((R @ X + t[:, None])[2] > 0)
+    inliers = close & front
+    if int(inliers.sum()) < cfg.min_inliers:
+        return None
+    par_deg = parallax_deg(matches.pts_target[inliers], matches.pts_source[inliers], K_t, K_s, R)
+    par = float(np.median(par_deg))
+    if par < cfg.min_median_parallax_deg:
+        reason = f"joint registration, near-pure rotation (median parallax {par:.2f} deg)"
+        return PoseEstimate(make_pose(R, np.zeros(3)), inliers, "rotation_only", reason, par)
+    return PoseEstimate(make_pose(R, t), inliers, "ok", "joint registration", par)
