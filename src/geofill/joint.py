@@ -68,9 +68,14 @@ def register_jointly(
         reader.mask_path = str(masks)
         mode = pycolmap.CameraMode.SINGLE if same else pycolmap.CameraMode.PER_IMAGE
         db = work / "db.db"
-        pycolmap.extract_features(db, images, camera_mode=mode, reader_options=reader)
-        pycolmap.match_exhaustive(db)
-        maps = pycolmap.incremental_mapping(db, images, work / "sparse")
+        level = pycolmap.logging.minloglevel
+        pycolmap.logging.minloglevel = 2  # COLMAP's step-by-step log would drown the progress lines
+        try:
+            pycolmap.extract_features(db, images, camera_mode=mode, reader_options=reader)
+            pycolmap.match_exhaustive(db)
+            maps = pycolmap.incremental_mapping(db, images, work / "sparse")
+        finally:
+            pycolmap.logging.minloglevel = level
     none: list[JointCamera | None] = [None] * len(sources)
     if not maps:
         return none

@@ -1,0 +1,66 @@
+"""Joint registration: the pose stage's result from a given pose (known geometry), and COLMAP's
+registration of a real set with GT poses (only where pycolmap and ../shared are there)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from geofill.camera import Intrinsics, make_pose, pose_errors_deg
+from geofill.config import GeometryConfig
+from geofill.joint import JointCamera, joint_focal, joint_pose, register_jointly
+from test_geometry import K_S, K_T, make_matches
+
+
+def test_joint_pose_keeps_the_matches_of_its_geometry_and_drops_planted_outliers():
+    T = make_pose(Rotation.from_euler("xyz", [2.0, -6.0, 1.0], degrees=True).as_matrix(), [0.6, 0.1, 0.15])
+    m, _ = make_matches(T, n=300)
+    rng = np.random.default_rng(1)
+    bad = rng.choice(300, 60, replace=False)
+    m.pts_source[bad] = rng.uniform([0, 0], [800, 600], (60, 2))
+    cam = JointCamera(make_pose(T[:3, :3], 3.7 * T[:3, 3]), K_T.fx, K_S.fx)  # any scale
+    est = joint_pose(cam, m, K_T, K_S, 2.0, GeometryConfig())
+    assert est is not None and est.status == "ok"
+    assert pose_errors_deg(est.T, T) == pytest.approx((0.0, 0.0), abs=1e-4)
+    assert np.isclose(np.linalg.norm(est.T[:3, 3]), 1.0)
+    good = np.ones(300, bool)
+    good[bad] = False
+    assert est.inliers[good].mean() > 0.95
+    assert est.inliers[bad].mean() < 0.1
+
+
+def test_joint_pose_refuses_a_pose_the_matches_disagree_with():
+    T = make_pose(Rotation.from_euler("y", -4.0, degrees=True).as_matrix(), [0.5, 0.0, 0.1])
+    m, _ = make_matches(T, n=200)
+    wrong = make_pose(Rotation.from_euler("y", 20.0, degrees=True).as_matrix(), [0.0, 0.5, 0.1])
+    assert joint_pose(JointCamera(wrong, K_T.fx, K_S.fx), m, K_T, K_S, 1.0, GeometryConfig()) is None
+
+
+def test_joint_focal_scales_to_the_working_size():
+    K_t, K_s = Intrinsics.from_focal(500.0, 640, 480), Intrinsics.from_focal(500.0, 320, 240)
+    est = joint_focal(JointCamera(np.eye(4), 1200.0, 900.0), K_t, K_s, 1280, 1280)
+    assert est.K_target.fx == pytest.approx(600.0) and est.K_target.fy == pytest.approx(600.0)
+    assert est.K_source.fx == pytest.approx(225.0)
+    assert est.scales == pytest.approx((1.2, 0.45))
+
+
+def test_colmap_registers_every_fox_reference_within_a_degree_of_its_gt_pose():
+    """COLMAP's estimate on a real set with GT poses, the evaluation's hole masked. (On the
+    rendered 3-view scenes of :func:`geofill.synthetic.make_views` it is not reliable: the focal
+    drifts x0.8-x2.5 and the translation flips, so those are not the test.)"""
+    pytest.importorskip("pycolmap")
+    from geofill.evaluation.pairs import load_pair, pair_geometry, pair_mask
+
+    root = Path(__file__).resolve().parents[2] / "shared/data/multiview/dev_mv_instantngp_fox_lower"
+    if not root.is_dir():
+        pytest.skip(f"{root} missing")
+    pair = load_pair(root)
+    geo = pair_geometry(pair)
+    cams = register_jointly(pair.target, np.asarray(pair_mask(pair, 0)) > 0, pair.sources)
+    assert len(cams) == len(pair.sources) and all(c is not None for c in cams)
+    for c, T in zip(cams, geo.T_source_to_target, strict=True):
+        assert pose_errors_deg(c.T, T)[0] < 1.0
+        assert c.focal_target == pytest.approx(geo.K_target[0, 0], rel=0.03)
