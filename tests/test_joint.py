@@ -64,3 +64,25 @@ def test_colmap_registers_every_fox_reference_within_a_degree_of_its_gt_pose():
     for c, T in zip(cams, geo.T_source_to_target, strict=True):
         assert pose_errors_deg(c.T, T)[0] < 1.0
         assert c.focal_target == pytest.approx(geo.K_target[0, 0], rel=0.03)
+
+
+def test_fill_with_joint_registration_uses_colmaps_focal_and_pose_for_every_fox_reference():
+    pytest.importorskip("pycolmap")
+    from geofill.config import FillConfig
+    from geofill.evaluation.pairs import load_pair, pair_geometry, pair_mask
+    from geofill.pipeline import fill
+
+    root = Path(__file__).resolve().parents[2] / "shared/data/multiview/dev_mv_instantngp_fox_lower"
+    if not root.is_dir():
+        pytest.skip(f"{root} missing")
+    pair = load_pair(root)
+    geo = pair_geometry(pair)
+    hole = np.asarray(pair_mask(pair, 0)) > 0
+    target = pair.target.copy()
+    target[hole] = 0
+    result = fill(target, hole, pair.sources, FillConfig().updated({"registration.joint": "auto"}))
+    h, w = target.shape[:2]
+    for ref, T in zip(result.references, geo.T_source_to_target, strict=True):
+        assert ref.focal.method == "joint" and ref.pose.status == "ok"
+        assert pose_errors_deg(ref.pose.T, T)[0] < 1.0
+        assert ref.focal.K_target.resized(w, h).fx == pytest.approx(geo.K_target[0, 0], rel=0.03)
