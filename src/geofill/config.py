@@ -819,6 +819,11 @@ class RegistrationConfig:
         "its focal and pose for each reference it registers; the others keep the per-pair stages. "
         "off: per-pair registration only.",
     )
+    optimize_joint: bool = setting(
+        True,
+        "Run the optimize stage on the references the joint registration placed; false: they keep its "
+        "pose and focal as they are (the references it left out are optimized as usual).",
+    )
 
 
 @dataclass

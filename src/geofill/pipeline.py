@@ -31,7 +31,7 @@ import numpy as np
 from .camera import Intrinsics
 from .composite.inpaint import Inpainter, get_inpainter
 from .composite.merge import merge_fill
-from .config import FillConfig
+from .config import FillConfig, OptimizeConfig
 from .depth import BackendChoice, DepthContext, choose_backend
 from .depth.stage import SourceDepth, estimate_depth, rotation_only_depth
 from .errors import ArrayFormatError, ReferenceUnusable
@@ -316,7 +316,7 @@ def run_reference(
         "pose": lambda a: usable_pose(estimate_pose(a.matches, a.focal.K_target, a.focal.K_source, cfg.geometry, cfg.matching, a.views.px_scale)),
         "triangulate": lambda a: triangulate_inliers(a.matches, a.pose, a.focal, cfg),
         "depth": lambda a: source_depth(a.views, a.focal, a.pose, a.points, ctx.depth_choice, a.source.shape, cfg),
-        "optimize": lambda a: optimize_geometry(a.views, a.focal, a.pose, a.depth, a.matches, cfg.optimize),
+        "optimize": lambda a: optimize_geometry(a.views, a.focal, a.pose, a.depth, a.matches, optimize_config(a, cfg)),
         "render": lambda a: render_reference(a.geometry, a.source, ctx.hole, cfg.render, render_margin_px(cfg)),
         "refine": lambda a: refine_render(ctx.target, ctx.hole, a.source, a.render.render, cfg.refine),
         "screen": lambda a: screen_render(a.refined, ctx.target, ctx.hole, a.source, ctx.shown, a.exclude, a.views, a.matches, a.focal, a.pose, cfg),
@@ -339,6 +339,15 @@ def run_reference(
         if stage == until:
             break
     return replace(a, timings_s={**ref.timings_s, **prog.timings})
+
+
+def optimize_config(ref: ReferenceArtifacts, cfg: FillConfig) -> OptimizeConfig:
+    """The optimize stage's settings for ``ref``: off for a jointly registered reference when
+    ``registration.optimize_joint`` says so."""
+    joint = ref.focal is not None and ref.focal.method == "joint"
+    if joint and not cfg.registration.optimize_joint:
+        return replace(cfg.optimize, enabled=False)
+    return cfg.optimize
 
 
 def _label(index: int, name: str) -> str:
