@@ -86,3 +86,23 @@ def test_fill_with_joint_registration_uses_colmaps_focal_and_pose_for_every_fox_
         assert ref.focal.method == "joint" and ref.pose.status == "ok"
         assert pose_errors_deg(ref.pose.T, T)[0] < 1.0
         assert ref.focal.K_target.resized(w, h).fx == pytest.approx(geo.K_target[0, 0], rel=0.03)
+
+
+def test_optimize_is_switched_off_only_for_jointly_registered_references_when_asked():
+    from geofill.config import FillConfig
+    from geofill.focal import FocalEstimate
+    from geofill.pipeline import ReferenceArtifacts, optimize_config
+
+    K = Intrinsics.from_focal(500.0, 640, 480)
+    joint = ReferenceArtifacts(
+        1,
+        np.zeros((480, 640, 3), np.uint8),
+        focal=joint_focal(JointCamera(np.eye(4), 600.0, 600.0), K, K, 640, 640),
+    )
+    pair = ReferenceArtifacts(
+        2, np.zeros((480, 640, 3), np.uint8), focal=FocalEstimate(K, K, "prior", "search", "", K, K, [])
+    )
+    keep = FillConfig().updated({"registration.optimize_joint": False})
+    assert not optimize_config(joint, keep).enabled
+    assert optimize_config(pair, keep).enabled
+    assert optimize_config(joint, FillConfig()).enabled
