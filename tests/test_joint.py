@@ -106,3 +106,28 @@ def test_optimize_is_switched_off_only_for_jointly_registered_references_when_as
     assert not optimize_config(joint, keep).enabled
     assert optimize_config(pair, keep).enabled
     assert optimize_config(joint, FillConfig()).enabled
+
+
+def test_a_joint_focal_that_contradicts_an_exif_prior_is_refused():
+    from dataclasses import replace
+
+    from geofill.config import IntrinsicsConfig
+    from geofill.joint import prior_conflict
+
+    exif = replace(Intrinsics.from_focal(1035.0, 1024, 768), origin="exif")
+    default = Intrinsics.from_focal(600.0, 1024, 768)
+    cfg = IntrinsicsConfig()  # EXIF prior +-5 %, refused beyond 3 sigma
+    assert "contradicts the exif prior" in prior_conflict(
+        joint_focal(JointCamera(np.eye(4), 750.0, 1035.0), exif, exif, 1024, 1024), cfg
+    )
+    assert (
+        prior_conflict(joint_focal(JointCamera(np.eye(4), 1080.0, 1035.0), exif, exif, 1024, 1024), cfg) == ""
+    )
+    assert (
+        prior_conflict(joint_focal(JointCamera(np.eye(4), 1200.0, 1200.0), default, default, 1024, 1024), cfg)
+        == ""
+    )
+    given = replace(default, origin="flag")
+    assert "given" in prior_conflict(
+        joint_focal(JointCamera(np.eye(4), 600.0, 600.0), given, default, 1024, 1024), cfg
+    )

@@ -20,8 +20,8 @@ import cv2
 import numpy as np
 
 from .camera import Intrinsics, make_pose
-from .config import GeometryConfig
-from .focal import FocalEstimate
+from .config import GeometryConfig, IntrinsicsConfig
+from .focal import FocalEstimate, prior_sigma
 from .match import Matches
 from .pose import PoseEstimate, normalise, parallax_deg
 
@@ -110,6 +110,24 @@ def joint_focal(cam: JointCamera, K_t: Intrinsics, K_s: Intrinsics, target_width
     K_s_new = replace(K_s, fx=cam.focal_source * K_s.width / source_width, origin="estimated")
     K_s_new = replace(K_s_new, fy=K_s_new.fx, rel_uncertainty=None)
     return FocalEstimate(K_t_new, K_s_new, "estimated", "joint", "", K_t, K_s, [])
+
+
+def prior_conflict(est: FocalEstimate, cfg: IntrinsicsConfig) -> str:
+    """Why the joint registration's focal must not be used ("" when it may): a focal given by a
+    flag, or one further than ``max_prior_conflict`` sigma from its prior (an EXIF focal, say:
+    COLMAP never sees the EXIF, as the images reach it as PNGs)."""
+    for K, prior, which in (
+        (est.K_target, est.prior_target, "target"),
+        (est.K_source, est.prior_source, "source"),
+    ):
+        sigma = prior_sigma(prior, cfg)
+        if sigma == 0.0:
+            return f"the {which} focal is given"
+        conflict = abs(np.log(K.fx / prior.fx)) / sigma
+        if conflict > cfg.max_prior_conflict:
+            scale = K.fx / prior.fx
+            return f"its {which} focal x{scale:.2f} contradicts the {prior.origin} prior ({conflict:.1f} sd)"
+    return ""
 
 
 def joint_pose(

@@ -40,7 +40,7 @@ from .fuse import Fusion, fuse_references
 from .intrinsics import ExifLens
 from .io import LoadedImage, as_rgb_uint8, as_source_mask, validate_pair
 from .joint import available as joint_available
-from .joint import joint_focal, joint_pose, register_jointly
+from .joint import joint_focal, joint_pose, prior_conflict, register_jointly
 from .match import Matches, match_pair
 from .multiview import MultiViewDepth, ViewGeometry, multiview_depth
 from .optimize.stage import Geometry, optimize_geometry
@@ -569,22 +569,32 @@ def joint_registration(
     if not joint_available():
         return refs, "pycolmap is not importable (pip install pycolmap): per-pair registration"
     cams = register_jointly(ctx.target, ctx.hole, [r.source for r in refs])
-    out, placed = [], []
+    out, placed, refused = [], [], []
     w_t = ctx.target.shape[1]
     for r, cam in zip(refs, cams, strict=True):
         if cam is None or r.matches is None or r.dropped:
             out.append(r)
             continue
         focal = joint_focal(cam, r.views.K_target, r.views.K_source, w_t, r.source.shape[1])
+        conflict = prior_conflict(focal, ctx.cfg.intrinsics)
+        if conflict:
+            refused.append(f"reference {r.index}: {conflict}")
+            out.append(r)
+            continue
         pose = joint_pose(cam, r.matches, focal.K_target, focal.K_source, r.views.ransac_px, ctx.cfg.geometry)
         if pose is None:
+            refused.append(f"reference {r.index}: too few of its matches agree with the joint pose")
             out.append(r)
             continue
         out.append(replace(r, focal=focal, pose=pose))
         placed.append(r.index)
+    why = f" (not used: {'; '.join(refused)})" if refused else ""
     if not placed:
-        return out, "COLMAP registered no reference with the target: per-pair registration"
-    return out, f"COLMAP registered reference(s) {', '.join(map(str, placed))} of {len(refs)} with the target"
+        return out, f"COLMAP registered no usable reference with the target: per-pair registration{why}"
+    return (
+        out,
+        f"COLMAP registered reference(s) {', '.join(map(str, placed))} of {len(refs)} with the target{why}",
+    )
 
 
 def multiview_step(
