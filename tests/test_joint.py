@@ -47,10 +47,9 @@ def test_joint_focal_scales_to_the_working_size():
     assert est.scales == pytest.approx((1.2, 0.45))
 
 
-def test_colmap_registers_every_fox_reference_within_a_degree_of_its_gt_pose():
-    """COLMAP's estimate on a real set with GT poses, the evaluation's hole masked. (On the
-    rendered 3-view scenes of :func:`geofill.synthetic.make_views` it is not reliable: the focal
-    drifts x0.8-x2.5 and the translation flips, so those are not the test.)"""
+def _fox_lower():
+    """The fox lower set (GT poses), its GT geometry and the evaluation's seed-0 hole; skips
+    without pycolmap or ../shared."""
     pytest.importorskip("pycolmap")
     from geofill.evaluation.pairs import load_pair, pair_geometry, pair_mask
 
@@ -58,8 +57,15 @@ def test_colmap_registers_every_fox_reference_within_a_degree_of_its_gt_pose():
     if not root.is_dir():
         pytest.skip(f"{root} missing")
     pair = load_pair(root)
-    geo = pair_geometry(pair)
-    cams = register_jointly(pair.target, np.asarray(pair_mask(pair, 0)) > 0, pair.sources)
+    return pair, pair_geometry(pair), np.asarray(pair_mask(pair, 0)) > 0
+
+
+def test_colmap_registers_every_fox_reference_within_a_degree_of_its_gt_pose():
+    """COLMAP's estimate on a real set with GT poses, the evaluation's hole masked. (On the
+    rendered 3-view scenes of :func:`geofill.synthetic.make_views` it is not reliable: the focal
+    drifts x0.8-x2.5 and the translation flips, so those are not the test.)"""
+    pair, geo, hole = _fox_lower()
+    cams = register_jointly(pair.target, hole, pair.sources)
     assert len(cams) == len(pair.sources) and all(c is not None for c in cams)
     for c, T in zip(cams, geo.T_source_to_target, strict=True):
         assert pose_errors_deg(c.T, T)[0] < 1.0
@@ -67,17 +73,10 @@ def test_colmap_registers_every_fox_reference_within_a_degree_of_its_gt_pose():
 
 
 def test_fill_with_joint_registration_uses_colmaps_focal_and_pose_for_every_fox_reference():
-    pytest.importorskip("pycolmap")
     from geofill.config import FillConfig
-    from geofill.evaluation.pairs import load_pair, pair_geometry, pair_mask
     from geofill.pipeline import fill
 
-    root = Path(__file__).resolve().parents[2] / "shared/data/multiview/dev_mv_instantngp_fox_lower"
-    if not root.is_dir():
-        pytest.skip(f"{root} missing")
-    pair = load_pair(root)
-    geo = pair_geometry(pair)
-    hole = np.asarray(pair_mask(pair, 0)) > 0
+    pair, geo, hole = _fox_lower()
     target = pair.target.copy()
     target[hole] = 0
     result = fill(target, hole, pair.sources, FillConfig().updated({"registration.joint": "auto"}))
