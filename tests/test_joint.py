@@ -101,10 +101,10 @@ def test_optimize_is_switched_off_only_for_jointly_registered_references_when_as
     pair = ReferenceArtifacts(
         2, np.zeros((480, 640, 3), np.uint8), focal=FocalEstimate(K, K, "prior", "search", "", K, K, [])
     )
-    keep = FillConfig().updated({"registration.optimize_joint": False})
+    keep = FillConfig()  # registration.optimize_joint is false by default
     assert not optimize_config(joint, keep).enabled
     assert optimize_config(pair, keep).enabled
-    assert optimize_config(joint, FillConfig()).enabled
+    assert optimize_config(joint, FillConfig().updated({"registration.optimize_joint": True})).enabled
 
 
 def test_a_joint_focal_that_contradicts_an_exif_prior_is_refused():

@@ -820,9 +820,10 @@ class RegistrationConfig:
         "off: per-pair registration only.",
     )
     optimize_joint: bool = setting(
-        True,
+        False,
         "Run the optimize stage on the references the joint registration placed; false: they keep its "
-        "pose and focal as they are (the references it left out are optimized as usual).",
+        "pose and focal as they are (the references it left out are optimized as usual). False: DEV-MV "
+        "hole PSNR with every reference 23.00 dB in two runs, true 22.56-22.64.",
     )
 
 
