@@ -71,6 +71,15 @@ SECTIONS = [
         "summary.md",
     ),
     Section(
+        "multiview_seeds",
+        "All references against the best single reference over three hole seeds "
+        "(`benchmarks/quality/multiview_seeds.py`)",
+        "The multi-view targets on the mean of seeds 0-2 (one seed's holes can favour either side): all "
+        "references minus the best single reference per set and seed, and the sets where all references "
+        "are at least as good.",
+        [PY, "benchmarks/quality/multiview_seeds.py"],
+    ),
+    Section(
         "multiview_graphcut",
         "Seams between references: graph cut (`geofill eval --methods geofill_graphcut`)",
         "As above with `fusion.seams=graphcut` (OpenCV graph-cut seams between the per-pixel winners) "

@@ -32,18 +32,6 @@ from benchmarks.common import MULTIVIEW
 SETS = ("dev_mv_instantngp_fox_lower", "dev_mv_instantngp_fox_upper", "dev_mv_slambook_livingroom")
 
 
-def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
-    """Angle between two directions (degrees)."""
-    c = float(a @ b / max(np.linalg.norm(a) * np.linalg.norm(b), 1e-12))
-    return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
-
-
-def _errors(T: np.ndarray, T_gt: np.ndarray) -> tuple[float, float]:
-    from geofill.camera import rotation_error_deg
-
-    return rotation_error_deg(T[:3, :3], T_gt[:3, :3]), _angle_deg(T[:3, 3], T_gt[:3, 3])
-
-
 def colmap(pair, hole: np.ndarray, work: Path) -> tuple[list[np.ndarray | None], float | None, float]:
     """COLMAP's source->target poses (None for a reference it did not register), its target focal
     (px) and the wall time."""
@@ -136,6 +124,7 @@ def main(argv: list[str] | None = None) -> int:
     except ImportError:
         print("needs pycolmap: run it in a venv with `pip install pycolmap==4.2.1` (see the docstring)")
         return 1
+    from geofill.camera import pose_errors_deg
     from geofill.evaluation.pairs import load_pair, pair_geometry, pair_mask
 
     print("set / reference            COLMAP (joint BA)                 geofill (per pair)")
@@ -158,7 +147,7 @@ def main(argv: list[str] | None = None) -> int:
                 if T is None or T_gt is None:
                     cells.append(f"{'not registered':>31s}")
                     continue
-                rot, direction = _errors(T, T_gt)
+                rot, direction = pose_errors_deg(T, T_gt)
                 ferr = 100.0 * (f - f_gt) / f_gt if f is not None else float("nan")
                 cells.append(f"{rot:8.2f} {direction:8.2f} {ferr:+8.1f}")
             print(f"  ref {k + 1:<21d}{cells[0]}       {cells[1]}")
