@@ -819,6 +819,17 @@ class RegistrationConfig:
         "its focal and pose for each reference it registers; the others keep the per-pair stages. "
         "off: per-pair registration only.",
     )
+    min_agreement: Annotated[float, Range(0, 1)] = setting(
+        0.6,
+        "A reference keeps COLMAP's focal and pose only where they explain at least this fraction of "
+        "as many of its own matches (Sampson within the RANSAC threshold, in front of both cameras) "
+        "as its per-pair focal and pose do; else it keeps the per-pair ones.",
+    )
+    max_features: Annotated[int, Range(256, 65536)] = setting(
+        2048,
+        "SIFT features per image for the joint registration (COLMAP's own detector, on the working-size "
+        "images).",
+    )
     optimize_joint: bool = setting(
         False,
         "Run the optimize stage on the references the joint registration placed; false: they keep its "

@@ -6,7 +6,7 @@ span several views, which per-pair two-view geometry cannot do: on the posed mul
 it registers every reference to 0.17-0.72 deg and the focal to 1-1.4 %, where the per-pair stages
 err by up to 20 deg and -44..+16 % (``benchmarks/studies/joint_registration.py``). Where it
 registers nothing (the Kinect living room) or leaves out the target or a reference, that
-reference keeps the per-pair path. Needs ``pip install pycolmap`` (CPU SfM; not a geofill extra yet).
+reference keeps the per-pair path. Needs the ``sfm`` extra (pycolmap: CPU SfM).
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from . import extras
 from .camera import Intrinsics, make_pose
 from .config import GeometryConfig, IntrinsicsConfig
 from .focal import FocalEstimate, prior_sigma
@@ -36,44 +37,66 @@ class JointCamera:
 
 
 def available() -> bool:
-    """Whether pycolmap can be imported."""
-    try:
-        import pycolmap  # noqa: F401
-    except ImportError:
-        return False
-    return True
+    """Whether pycolmap (the ``sfm`` extra) is installed."""
+    return extras.available("pycolmap")
 
 
 def register_jointly(
-    target: np.ndarray, hole: np.ndarray, sources: Sequence[np.ndarray]
+    target: np.ndarray,
+    hole: np.ndarray,
+    sources: Sequence[np.ndarray],
+    focal_target: float,
+    focal_sources: Sequence[float],
+    max_features: int = 2048,
 ) -> list[JointCamera | None]:
-    """COLMAP's registration of ``target`` (its ``hole`` masked out for the features) and every
-    source: one entry per source, None where the target or that source is not in the largest model.
-    One shared camera when every image has the same size."""
+    """COLMAP's registration of ``target`` (8-bit grey or RGB; its ``hole`` masked out for the
+    features) and every source: one entry per source, None where the target or that source is not
+    in the largest model. Each camera starts from the given focal (px of these images; COLMAP's
+    own start, 1.2 x the long side, let the rendered 375-px scenes drift to x2.2 with the
+    translation flipped). One shared camera when every image has the same size and focal.
+    Deterministic: fixed RANSAC seeds, one mapping thread."""
     import pycolmap
 
+    images_in = [target, *sources]
+    focals = [float(focal_target), *map(float, focal_sources)]
     with tempfile.TemporaryDirectory(prefix="geofill-joint-") as tmp:
         work = Path(tmp)
         images, masks = work / "images", work / "masks"
         images.mkdir()
         masks.mkdir()
         names = ["target.png"] + [f"source{k}.png" for k in range(len(sources))]
-        for name, img in zip(names, [target, *sources], strict=True):
-            cv2.imwrite(str(images / name), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
+        fast_png = [cv2.IMWRITE_PNG_COMPRESSION, 1]  # written once, read once: size does not matter
+        for name, img in zip(names, images_in, strict=True):
+            grey = img if img.ndim == 2 else cv2.cvtColor(img, cv2.COLOR_RGB2GRAY)
+            cv2.imwrite(str(images / name), grey, fast_png)
             keep = ~hole if name == "target.png" else np.ones(img.shape[:2], bool)
-            cv2.imwrite(str(masks / f"{name}.png"), keep.astype(np.uint8) * 255)  # COLMAP: 0 = ignored
-        same = len({img.shape[:2] for img in [target, *sources]}) == 1
+            cv2.imwrite(str(masks / f"{name}.png"), keep.astype(np.uint8) * 255, fast_png)  # 0 = ignored
+        same = len({img.shape[:2] for img in images_in}) == 1 and len(set(focals)) == 1
         reader = pycolmap.ImageReaderOptions()
-        reader.camera_model = "SIMPLE_RADIAL"
+        # geofill models no lens distortion: a radial term fitted here and then dropped cost
+        # COLMAP's poses half their agreement with a pair's own matches on fox upper.
+        reader.camera_model = "SIMPLE_PINHOLE"
         reader.mask_path = str(masks)
+        extraction = pycolmap.FeatureExtractionOptions()
+        extraction.sift.max_num_features = max_features
+        extraction.sift.first_octave = 0  # no upsampled octave: a third of the time, same poses
         mode = pycolmap.CameraMode.SINGLE if same else pycolmap.CameraMode.PER_IMAGE
-        db = work / "db.db"
+        db_path = work / "db.db"
         level = pycolmap.logging.minloglevel
         pycolmap.logging.minloglevel = 2  # COLMAP's step-by-step log would drown the progress lines
         try:
-            pycolmap.extract_features(db, images, camera_mode=mode, reader_options=reader)
-            pycolmap.match_exhaustive(db)
-            maps = pycolmap.incremental_mapping(db, images, work / "sparse")
+            pycolmap.set_random_seed(0)
+            pycolmap.extract_features(
+                db_path, images, camera_mode=mode, reader_options=reader, extraction_options=extraction
+            )
+            _seed_focals(db_path, names, focals)
+            verification = pycolmap.TwoViewGeometryOptions()
+            verification.ransac.random_seed = 0
+            pycolmap.match_exhaustive(db_path, verification_options=verification)
+            mapping = pycolmap.IncrementalPipelineOptions()
+            mapping.num_threads = 1  # no run-to-run differences from the order threads finish in (~0.3 s)
+            mapping.random_seed = 0
+            maps = pycolmap.incremental_mapping(db_path, images, work / "sparse", options=mapping)
         finally:
             pycolmap.logging.minloglevel = level
     none: list[JointCamera | None] = [None] * len(sources)
@@ -103,6 +126,25 @@ def register_jointly(
     return out
 
 
+def _seed_focals(db_path: Path, names: Sequence[str], focals: Sequence[float]) -> None:
+    """Give each image's camera in COLMAP's database its focal as a known prior."""
+    import pycolmap
+
+    db = pycolmap.Database.open(db_path)
+    try:
+        focal_of = {}
+        for img in db.read_all_images():
+            focal_of[img.camera_id] = focals[list(names).index(img.name)]
+        for cam in db.read_all_cameras():
+            params = np.array(cam.params, dtype=float)
+            params[0] = focal_of[cam.camera_id]
+            cam.params = params
+            cam.has_prior_focal_length = True
+            db.update_camera(cam)
+    finally:
+        db.close()
+
+
 def joint_focal(cam: JointCamera, K_t: Intrinsics, K_s: Intrinsics, target_width: int, source_width: int):
     """The focal stage's result from the joint registration (``K_t``/``K_s``: the working priors)."""
     K_t_new = replace(K_t, fx=cam.focal_target * K_t.width / target_width, origin="estimated")
@@ -130,31 +172,45 @@ def prior_conflict(est: FocalEstimate, cfg: IntrinsicsConfig) -> str:
     return ""
 
 
-def joint_pose(
-    cam: JointCamera, matches: Matches, K_t: Intrinsics, K_s: Intrinsics, thr_px: float, cfg: GeometryConfig
-) -> PoseEstimate | None:
-    """The pose stage's result from the joint registration: translation to unit norm, inliers =
-    the pair's matches within ``thr_px`` (Sampson) of its epipolar geometry and in front of both
-    cameras. None when too few agree (then the per-pair pose runs)."""
-    R, t = cam.T[:3, :3], cam.T[:3, 3]
-    norm = float(np.linalg.norm(t))
-    if norm < 1e-12 or len(matches) == 0:
-        return None
-    t = t / norm
+def agreeing(T: np.ndarray, matches: Matches, K_t: Intrinsics, K_s: Intrinsics, thr_px: float) -> np.ndarray:
+    """Which of ``matches`` a source->target pose ``T`` (any translation scale) and these
+    intrinsics explain: within ``thr_px`` (Sampson) of its epipolar geometry and in front of both
+    cameras. A pure rotation (zero translation): within ``thr_px`` of its homography."""
+    R, t = T[:3, :3], T[:3, 3]
     x_s, x_t = normalise(matches.pts_source, K_s), normalise(matches.pts_target, K_t)
+    focal = 0.5 * (K_t.fx + K_s.fx)
+    norm = float(np.linalg.norm(t))
     h_s = np.column_stack([x_s, np.ones(len(x_s))])
     h_t = np.column_stack([x_t, np.ones(len(x_t))])
+    if norm < 1e-12:
+        p = h_s @ R.T
+        p = p[:, :2] / np.where(np.abs(p[:, 2:]) < 1e-12, 1e-12, p[:, 2:])
+        return (np.linalg.norm(p - x_t, axis=1) < thr_px / focal) & ((h_s @ R.T)[:, 2] > 0)
+    t = t / norm
     tx = np.array([[0.0, -t[2], t[1]], [t[2], 0.0, -t[0]], [-t[1], t[0], 0.0]])
     E = tx @ R
     Ex, Etx = h_s @ E.T, h_t @ E
     num = np.sum(h_t * Ex, axis=1) ** 2
     sampson = num / (Ex[:, 0] ** 2 + Ex[:, 1] ** 2 + Etx[:, 0] ** 2 + Etx[:, 1] ** 2 + 1e-300)
-    focal = 0.5 * (K_t.fx + K_s.fx)
     close = sampson < (thr_px / focal) ** 2
     X = cv2.triangulatePoints(np.eye(3, 4), np.column_stack([R, t]), x_s.T, x_t.T)
     X = X[:3] / np.where(np.abs(X[3]) < 1e-12, 1e-12, X[3])
     front = (X[2] > 0) & ((R @ X + t[:, None])[2] > 0)
-    inliers = close & front
+    return close & front
+
+
+def joint_pose(
+    cam: JointCamera, matches: Matches, K_t: Intrinsics, K_s: Intrinsics, thr_px: float, cfg: GeometryConfig
+) -> PoseEstimate | None:
+    """The pose stage's result from the joint registration: translation to unit norm, inliers =
+    the pair's matches it explains (:func:`agreeing`). None when too few agree (then the
+    per-pair pose runs)."""
+    R, t = cam.T[:3, :3], cam.T[:3, 3]
+    norm = float(np.linalg.norm(t))
+    if norm < 1e-12 or len(matches) == 0:
+        return None
+    t = t / norm
+    inliers = agreeing(make_pose(R, t), matches, K_t, K_s, thr_px)
     if int(inliers.sum()) < cfg.min_inliers:
         return None
     par_deg = parallax_deg(matches.pts_target[inliers], matches.pts_source[inliers], K_t, K_s, R)

@@ -35,12 +35,13 @@ from .config import FillConfig, OptimizeConfig
 from .depth import BackendChoice, DepthContext, choose_backend
 from .depth.stage import SourceDepth, estimate_depth, rotation_only_depth
 from .errors import ArrayFormatError, ReferenceUnusable
+from .extras import install_hint
 from .focal import FocalEstimate, estimate_focal, shared_estimate, shared_focal_scale
 from .fuse import Fusion, fuse_references
 from .intrinsics import ExifLens
 from .io import LoadedImage, as_rgb_uint8, as_source_mask, validate_pair
+from .joint import agreeing, joint_focal, joint_pose, prior_conflict, register_jointly
 from .joint import available as joint_available
-from .joint import joint_focal, joint_pose, prior_conflict, register_jointly
 from .match import Matches, match_pair
 from .multiview import MultiViewDepth, ViewGeometry, multiview_depth
 from .optimize.stage import Geometry, optimize_geometry
@@ -564,37 +565,69 @@ def joint_registration(
     ctx: FillContext, refs: list[ReferenceArtifacts]
 ) -> tuple[list[ReferenceArtifacts], str]:
     """Every matched reference that the joint registration (:mod:`geofill.joint`) places together
-    with the target given its focal and pose (their focal and pose stages then do not run); the
-    others keep the per-pair stages. Also the line saying what happened."""
+    with the target, and whose own matches its geometry explains about as well as the per-pair
+    focal and pose do, given COLMAP's focal and pose; the others keep the per-pair focal and pose
+    (computed here for the comparison). Also the line saying what happened."""
+    cfg = ctx.cfg
     if not joint_available():
-        return refs, "pycolmap is not importable (pip install pycolmap): per-pair registration"
-    cams = register_jointly(ctx.target, ctx.hole, [r.source for r in refs])
+        return (
+            refs,
+            f"per-pair registration: the joint one needs the 'sfm' extra ({install_hint('pycolmap')})",
+        )
+    live = [r for r in refs if r.views is not None]
+    if len(live) < 2:
+        return refs, "per-pair registration: fewer than two references to register together"
+    first = live[0]
+    f_t = first.focal.K_target.fx if first.focal is not None else first.views.K_target.fx
+    f_s = [r.focal.K_source.fx if r.focal is not None else r.views.K_source.fx for r in live]
+    cams = register_jointly(
+        first.views.target_gray, first.views.hole, [r.views.source_gray for r in live], f_t, f_s,
+        cfg.registration.max_features,
+    )  # fmt: skip
+    cam_of = {r.index: c for r, c in zip(live, cams, strict=True)}
     out, placed, refused = [], [], []
-    w_t = ctx.target.shape[1]
-    for r, cam in zip(refs, cams, strict=True):
+    for r in refs:
+        cam = cam_of.get(r.index)
         if cam is None or r.matches is None or r.dropped:
             out.append(r)
             continue
-        focal = joint_focal(cam, r.views.K_target, r.views.K_source, w_t, r.source.shape[1])
-        conflict = prior_conflict(focal, ctx.cfg.intrinsics)
-        if conflict:
-            refused.append(f"reference {r.index}: {conflict}")
-            out.append(r)
+        v = r.views
+        joint = joint_focal(cam, v.K_target, v.K_source, v.K_target.width, v.K_source.width)
+        own_focal = r.focal or estimate_focal(r.matches, v.K_target, v.K_source, cfg.intrinsics, v.ransac_px)
+        own = estimate_pose(
+            r.matches, own_focal.K_target, own_focal.K_source, cfg.geometry, cfg.matching, v.px_scale
+        )
+        keep = replace(r, focal=own_focal, pose=own if own.usable else None)
+        conflict = prior_conflict(joint, cfg.intrinsics)
+        pose = (
+            None
+            if conflict
+            else joint_pose(cam, r.matches, joint.K_target, joint.K_source, v.ransac_px, cfg.geometry)
+        )
+        if conflict or pose is None:
+            refused.append(
+                f"reference {r.index}: {conflict or 'too few of its matches agree with the joint pose'}"
+            )
+            out.append(keep)
             continue
-        pose = joint_pose(cam, r.matches, focal.K_target, focal.K_source, r.views.ransac_px, ctx.cfg.geometry)
-        if pose is None:
-            refused.append(f"reference {r.index}: too few of its matches agree with the joint pose")
-            out.append(r)
+        n_joint = int(pose.inliers.sum())
+        n_own = (
+            int(agreeing(own.T, r.matches, own_focal.K_target, own_focal.K_source, v.ransac_px).sum())
+            if own.usable
+            else 0
+        )
+        if n_joint < cfg.registration.min_agreement * n_own:
+            refused.append(
+                f"reference {r.index}: its matches agree with the joint pose {n_joint}x, the per-pair one {n_own}x"
+            )
+            out.append(keep)
             continue
-        out.append(replace(r, focal=focal, pose=pose))
-        placed.append(r.index)
+        out.append(replace(r, focal=joint, pose=pose))
+        placed.append(f"{r.index} ({n_joint}/{n_own} matches)")
     why = f" (not used: {'; '.join(refused)})" if refused else ""
     if not placed:
         return out, f"COLMAP registered no usable reference with the target: per-pair registration{why}"
-    return (
-        out,
-        f"COLMAP registered reference(s) {', '.join(map(str, placed))} of {len(refs)} with the target{why}",
-    )
+    return out, f"COLMAP registered reference(s) {', '.join(placed)} of {len(refs)} with the target{why}"
 
 
 def multiview_step(
