@@ -478,12 +478,10 @@ def fill(
     else:
         prog.advance(shared_step)
     if joint_step:
-        refs = _run_references(ctx, refs, prog, until="match")
+        refs = _run_references(ctx, refs, prog, until="pose")  # the per-pair ones, to compare
         with prog.stage("joint registration") as notes:
-            before = sum((r.focal is None) + (r.pose is None) for r in refs)
             refs, words = joint_registration(ctx, refs)
             notes.append(words)
-        prog.advance(before - sum((r.focal is None) + (r.pose is None) for r in refs))  # stages not run
     multiview = None
     if mv_step:
         refs = _run_references(ctx, refs, prog, until="optimize")
@@ -564,10 +562,10 @@ def shared_focal(refs: list[ReferenceArtifacts], cfg: FillConfig) -> list[Refere
 def joint_registration(
     ctx: FillContext, refs: list[ReferenceArtifacts]
 ) -> tuple[list[ReferenceArtifacts], str]:
-    """Every matched reference that the joint registration (:mod:`geofill.joint`) places together
-    with the target, and whose own matches its geometry explains about as well as the per-pair
-    focal and pose do, given COLMAP's focal and pose; the others keep the per-pair focal and pose
-    (computed here for the comparison). Also the line saying what happened."""
+    """Every reference with a per-pair focal and pose that the joint registration
+    (:mod:`geofill.joint`) places together with the target, and whose own matches its geometry
+    explains about as well as the per-pair focal and pose do, given COLMAP's focal and pose; the
+    others keep the per-pair ones. Also the line saying what happened."""
     cfg = ctx.cfg
     if not joint_available():
         return (
@@ -576,7 +574,7 @@ def joint_registration(
         )
     live = [r for r in refs if r.views is not None]
     if len(live) < 2:
-        return refs, "per-pair registration: fewer than two references to register together"
+        return refs, "per-pair registration: fewer than two references were prepared"
     first = live[0]
     f_t = first.focal.K_target.fx if first.focal is not None else first.views.K_target.fx
     f_s = [r.focal.K_source.fx if r.focal is not None else r.views.K_source.fx for r in live]
@@ -588,43 +586,30 @@ def joint_registration(
     out, placed, refused = [], [], []
     for r in refs:
         cam = cam_of.get(r.index)
-        if cam is None or r.matches is None or r.dropped:
+        if cam is None or r.pose is None or r.dropped:
             out.append(r)
             continue
         v = r.views
         joint = joint_focal(cam, v.K_target, v.K_source, v.K_target.width, v.K_source.width)
-        own_focal = r.focal or estimate_focal(r.matches, v.K_target, v.K_source, cfg.intrinsics, v.ransac_px)
-        own = estimate_pose(
-            r.matches, own_focal.K_target, own_focal.K_source, cfg.geometry, cfg.matching, v.px_scale
-        )
-        keep = replace(r, focal=own_focal, pose=own if own.usable else None)
         conflict = prior_conflict(joint, cfg.intrinsics)
         pose = (
             None
             if conflict
             else joint_pose(cam, r.matches, joint.K_target, joint.K_source, v.ransac_px, cfg.geometry)
         )
-        if conflict or pose is None:
-            refused.append(
-                f"reference {r.index}: {conflict or 'too few of its matches agree with the joint pose'}"
+        n_joint = 0 if pose is None else int(pose.inliers.sum())
+        n_own = int(agreeing(r.pose.T, r.matches, r.focal.K_target, r.focal.K_source, v.ransac_px).sum())
+        if conflict or n_joint < max(cfg.geometry.min_inliers, cfg.registration.min_agreement * n_own):
+            why = (
+                conflict
+                or f"its matches agree with the joint pose {n_joint}x, with the per-pair one {n_own}x"
             )
-            out.append(keep)
-            continue
-        n_joint = int(pose.inliers.sum())
-        n_own = (
-            int(agreeing(own.T, r.matches, own_focal.K_target, own_focal.K_source, v.ransac_px).sum())
-            if own.usable
-            else 0
-        )
-        if n_joint < cfg.registration.min_agreement * n_own:
-            refused.append(
-                f"reference {r.index}: its matches agree with the joint pose {n_joint}x, the per-pair one {n_own}x"
-            )
-            out.append(keep)
+            refused.append(f"reference {r.index}: {why}")
+            out.append(r)
             continue
         out.append(replace(r, focal=joint, pose=pose))
-        placed.append(f"{r.index} ({n_joint}/{n_own} matches)")
-    why = f" (not used: {'; '.join(refused)})" if refused else ""
+        placed.append(f"{r.index} ({n_joint} matches agree, {n_own} with the per-pair pose)")
+    why = f" (per-pair kept for {'; '.join(refused)})" if refused else ""
     if not placed:
         return out, f"COLMAP registered no usable reference with the target: per-pair registration{why}"
     return out, f"COLMAP registered reference(s) {', '.join(placed)} of {len(refs)} with the target{why}"
