@@ -885,6 +885,11 @@ class MultiViewConfig:
         "(median relative difference after the scale fit) is not placed in the common frame: it is "
         "neither swept nor a view.",
     )
+    joint_scale: bool = setting(
+        True,
+        "References placed by the joint registration (``registration.joint``) take their scale in the "
+        "common frame from its baselines, one frame for all, instead of the median depth ratio.",
+    )
 
 
 @dataclass

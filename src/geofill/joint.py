@@ -92,10 +92,13 @@ def register_jointly(
             _seed_focals(db_path, names, focals)
             verification = pycolmap.TwoViewGeometryOptions()
             verification.ransac.random_seed = 0
-            pycolmap.match_exhaustive(db_path, verification_options=verification)
+            matching = pycolmap.FeatureMatchingOptions()
+            matching.num_threads = 1
+            pycolmap.match_exhaustive(db_path, matching_options=matching, verification_options=verification)
             mapping = pycolmap.IncrementalPipelineOptions()
             mapping.num_threads = 1  # no run-to-run differences from the order threads finish in (~0.3 s)
-            mapping.random_seed = 0
+            mapping.random_seed = mapping.mapper.random_seed = mapping.triangulation.random_seed = 0
+            mapping.mapper.num_threads = 1
             maps = pycolmap.incremental_mapping(db_path, images, work / "sparse", options=mapping)
         finally:
             pycolmap.logging.minloglevel = level

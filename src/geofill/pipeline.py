@@ -121,6 +121,8 @@ class ReferenceArtifacts:
     render: ReferenceRender | None = None
     refined: RefinedRender | None = None
     screened: ScreenedRender | None = None
+    # Its translation length in the joint registration's units (None: registered by its pair alone).
+    joint_baseline: float | None = None
     dropped: str = ""  # the reason this reference cannot help ("" while it can)
     dropped_at: str = ""  # the stage that found it out
     timings_s: dict[str, float] = field(default_factory=dict)
@@ -559,6 +561,14 @@ def shared_focal(refs: list[ReferenceArtifacts], cfg: FillConfig) -> list[Refere
     ]
 
 
+def one_camera(refs: list[ReferenceArtifacts]) -> bool:
+    """Whether the target and these references look like one camera to the joint registration:
+    the same working size and the same focal prior (all default, or one EXIF focal)."""
+    views = [r.views for r in refs if r.views is not None]
+    priors = {(K.width, K.height, K.fx, K.origin) for v in views for K in (v.K_target, v.K_source)}
+    return len(priors) == 1
+
+
 def joint_registration(
     ctx: FillContext, refs: list[ReferenceArtifacts]
 ) -> tuple[list[ReferenceArtifacts], str]:
@@ -576,8 +586,14 @@ def joint_registration(
     if len(live) < 2:
         return refs, "per-pair registration: fewer than two references were prepared"
     first = live[0]
-    f_t = first.focal.K_target.fx if first.focal is not None else first.views.K_target.fx
-    f_s = [r.focal.K_source.fx if r.focal is not None else r.views.K_source.fx for r in live]
+    estimated = [r.focal.K_target.fx for r in live if r.focal is not None]
+    f_t = float(np.median(estimated)) if estimated else first.views.K_target.fx
+    if one_camera(live):
+        # One camera for all, from the pairs' median: seeding each image with its own pair's
+        # estimate split the camera on fox upper (focal 514-983 px) and COLMAP misplaced a reference by 9 deg.
+        f_s = [f_t] * len(live)
+    else:
+        f_s = [r.focal.K_source.fx if r.focal is not None else r.views.K_source.fx for r in live]
     cams = register_jointly(
         first.views.target_gray, first.views.hole, [r.views.source_gray for r in live], f_t, f_s,
         cfg.registration.max_features,
@@ -607,7 +623,8 @@ def joint_registration(
             refused.append(f"reference {r.index}: {why}")
             out.append(r)
             continue
-        out.append(replace(r, focal=joint, pose=pose))
+        baseline = float(np.linalg.norm(cam.T[:3, 3])) if pose.status == "ok" else None
+        out.append(replace(r, focal=joint, pose=pose, joint_baseline=baseline))
         placed.append(f"{r.index} ({n_joint} matches agree, {n_own} with the per-pair pose)")
     why = f" (per-pair kept for {'; '.join(refused)})" if refused else ""
     if not placed:
@@ -622,7 +639,7 @@ def multiview_step(
     (:func:`geofill.multiview.multiview_depth`)."""
     live = [r for r in refs if r.geometry is not None and not r.dropped]
     geometries, result = multiview_depth(
-        [ViewGeometry(r.index, r.views, r.geometry, r.points) for r in live],
+        [ViewGeometry(r.index, r.views, r.geometry, r.points, r.joint_baseline) for r in live],
         cfg.multiview,
         cfg.fusion.parallel,
     )
