@@ -180,3 +180,20 @@ def test_a_joint_focal_that_contradicts_an_exif_prior_is_refused():
     assert "given" in prior_conflict(
         joint_focal(JointCamera(np.eye(4), 600.0, 600.0), given, default, 1024, 1024), cfg
     )
+
+
+def test_without_pycolmap_the_stage_line_names_the_extra_and_a_single_reference_never_plans_it(monkeypatch):
+    import geofill.pipeline as pipeline
+
+    monkeypatch.setattr(pipeline, "joint_available", lambda: False)
+    v = make_views(seed=0, width=320, height=240)
+    hole = np.zeros((240, 320), bool)
+    hole[90:150, 130:190] = True
+    cfg = FillConfig().updated({"registration.joint": "auto"})
+    lines = {}
+    for name, sources in (("two", v.sources), ("one", v.sources[:1])):
+        out = io.StringIO()
+        fill(blanked(v.target, hole), hole, sources, cfg, progress=Progress(verbose=True, stream=out))
+        lines[name] = [x for x in out.getvalue().splitlines() if "joint registration" in x]
+    assert len(lines["two"]) == 1 and 'pip install "geofill[sfm]"' in lines["two"][0]
+    assert lines["one"] == []
