@@ -830,6 +830,10 @@ class RegistrationConfig:
         "SIFT features per image for the joint registration (COLMAP's own detector, on the working-size "
         "images).",
     )
+    max_side: Annotated[int, Range(0, 16384)] = setting(
+        1280,
+        "Long side (px) of the images COLMAP sees, at most the working size (0: the working size).",
+    )
     optimize_joint: bool = setting(
         False,
         "Run the optimize stage on the references the joint registration placed; false: they keep its "

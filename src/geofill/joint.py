@@ -25,6 +25,7 @@ from .config import GeometryConfig, IntrinsicsConfig
 from .focal import FocalEstimate, prior_sigma
 from .match import Matches
 from .pose import PoseEstimate, normalise, parallax_deg
+from .utils.resolution import resize_long, resize_mask_any
 
 
 @dataclass(frozen=True)
@@ -48,17 +49,21 @@ def register_jointly(
     focal_target: float,
     focal_sources: Sequence[float],
     max_features: int = 2048,
+    max_side: int = 0,
 ) -> list[JointCamera | None]:
     """COLMAP's registration of ``target`` (8-bit grey or RGB; its ``hole`` masked out for the
     features) and every source: one entry per source, None where the target or that source is not
     in the largest model. Each camera starts from the given focal (px of these images; COLMAP's
     own start, 1.2 x the long side, let the rendered 375-px scenes drift to x2.2 with the
     translation flipped). One shared camera when every image has the same size and focal.
-    Deterministic: fixed RANSAC seeds, one mapping thread."""
+    Deterministic: fixed RANSAC seeds, one matching and mapping thread. ``max_side`` > 0: COLMAP
+    sees the images shrunk to that long side (the focal lengths come back in the given images' px)."""
     import pycolmap
 
-    images_in = [target, *sources]
-    focals = [float(focal_target), *map(float, focal_sources)]
+    shrink = [_shrink(img.shape, max_side) for img in [target, *sources]]
+    images_in = [resize_long(img, max_side) if max_side else img for img in [target, *sources]]
+    hole = resize_mask_any(hole, max_side) if max_side else hole
+    focals = [f * k for f, k in zip([float(focal_target), *map(float, focal_sources)], shrink, strict=True)]
     with tempfile.TemporaryDirectory(prefix="geofill-joint-") as tmp:
         work = Path(tmp)
         images, masks = work / "images", work / "masks"
@@ -117,16 +122,24 @@ def register_jointly(
 
     t = by_name["target.png"]
     w_t = world_to_cam(t)
-    f_t = float(rec.cameras[t.camera_id].params[0])
+    f_t = float(rec.cameras[t.camera_id].params[0]) / shrink[0]
     out = []
-    for name in names[1:]:
+    for name, k in zip(names[1:], shrink[1:], strict=True):
         img = by_name.get(name)
         if img is None:
             out.append(None)
             continue
         T = w_t @ np.linalg.inv(world_to_cam(img))
-        out.append(JointCamera(T, f_t, float(rec.cameras[img.camera_id].params[0])))
+        out.append(JointCamera(T, f_t, float(rec.cameras[img.camera_id].params[0]) / k))
     return out
+
+
+def _shrink(shape: tuple[int, ...], max_side: int) -> float:
+    """The factor :func:`resize_long` scales an image of ``shape`` by (1 when ``max_side`` is 0)."""
+    if not max_side or max(shape[:2]) <= max_side:
+        return 1.0
+    h, w = shape[:2]
+    return max(round(w * max_side / max(h, w)), 1) / w
 
 
 def _seed_focals(db_path: Path, names: Sequence[str], focals: Sequence[float]) -> None:

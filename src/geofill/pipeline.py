@@ -596,7 +596,7 @@ def joint_registration(
         f_s = [r.focal.K_source.fx if r.focal is not None else r.views.K_source.fx for r in live]
     cams = register_jointly(
         first.views.target_gray, first.views.hole, [r.views.source_gray for r in live], f_t, f_s,
-        cfg.registration.max_features,
+        cfg.registration.max_features, cfg.registration.max_side,
     )  # fmt: skip
     cam_of = {r.index: c for r, c in zip(live, cams, strict=True)}
     out, placed, refused = [], [], []
