@@ -88,7 +88,7 @@ def register_jointly(
         mode = pycolmap.CameraMode.SINGLE if same else pycolmap.CameraMode.PER_IMAGE
         db_path = work / "db.db"
         level = pycolmap.logging.minloglevel
-        pycolmap.logging.minloglevel = 2  # COLMAP's step-by-step log would drown the progress lines
+        pycolmap.logging.minloglevel = 3  # its step-by-step log and "no model" errors: the stage line says it
         try:
             pycolmap.set_random_seed(0)
             pycolmap.extract_features(
