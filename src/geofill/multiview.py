@@ -191,7 +191,9 @@ def joint_scales(refs: Sequence[ViewGeometry]) -> list[float | None]:
     return [None if first is None or (u := units(g)) is None else u / first for g in refs]
 
 
-def common_scales(refs: Sequence[ViewGeometry], known: Sequence[float | None]) -> list[tuple[float, float]]:
+def common_scales(
+    refs: Sequence[ViewGeometry], known: Sequence[float | None] | None = None
+) -> list[tuple[float, float]]:
     """Per reference, (scale into the first reference's units, median relative spread of the
     ratios): the ``known`` scale where there is one, else the median ratio. Each ratio compares one
     measured depth with the other reference's at the same target pixel: a reference's
@@ -200,7 +202,7 @@ def common_scales(refs: Sequence[ViewGeometry], known: Sequence[float | None]) -
     depths = [target_view_depth(g) for g in refs]
     points = [_target_z(g) for g in refs]
     out = []
-    for d, (uv, z), given in zip(depths, points, known, strict=True):
+    for d, (uv, z), given in zip(depths, points, known or [None] * len(refs), strict=True):
         uv0, z0 = points[0]
         log_ratio = np.concatenate([np.log(_sample(depths[0], uv) / z), np.log(z0 / _sample(d, uv0))])
         log_ratio = log_ratio[np.isfinite(log_ratio)]
@@ -403,7 +405,7 @@ def multiview_depth(
     (unchanged where nothing was measured), and what was measured (see the module docstring)."""
     if len(refs) < 2:
         return [g.geometry for g in refs], MultiViewDepth(())
-    placed = common_scales(refs, joint_scales(refs) if cfg.joint_scale else [None] * len(refs))
+    placed = common_scales(refs, joint_scales(refs) if cfg.joint_scale else None)
     scales = [sc if np.isfinite(sp) and sp <= cfg.max_scale_spread else float("nan") for sc, sp in placed]
     greys = _Greys.of(refs, cfg.max_side)
 
