@@ -11,6 +11,7 @@ reference keeps the per-pair path. Needs the ``sfm`` extra (pycolmap: CPU SfM).
 
 from __future__ import annotations
 
+import hashlib
 import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
@@ -69,7 +70,12 @@ def register_jointly(
         images, masks = work / "images", work / "masks"
         images.mkdir()
         masks.mkdir()
-        names = ["target.png"] + [f"source{k}.png" for k in range(len(sources))]
+        # Named by content, not by position: COLMAP's incremental mapping depends on the images'
+        # order, and the fill must not depend on the order the references are given in.
+        rank = np.argsort([hashlib.sha256(img.tobytes()).hexdigest() for img in sources], kind="stable")
+        names = ["target.png"] + [""] * len(sources)
+        for position, k in enumerate(rank):
+            names[1 + k] = f"source{position}.png"
         fast_png = [cv2.IMWRITE_PNG_COMPRESSION, 1]  # written once, read once: size does not matter
         for name, img in zip(names, images_in, strict=True):
             grey = img if img.ndim == 2 else cv2.cvtColor(img, cv2.COLOR_RGB2GRAY)
