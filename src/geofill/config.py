@@ -818,9 +818,9 @@ class RegistrationConfig:
         "every reference together (COLMAP's incremental SfM with bundle adjustment, the hole masked, "
         "deterministic) after the per-pair focal and pose, and use its focal and pose for each reference "
         "it places whose own matches agree (``min_agreement``); the others keep the per-pair ones. "
-        "off: per-pair registration only (the default: on DEV-MV with all references, auto raises restoration "
-        "21.83 -> 22.41 dB over mask seeds 0-2 but lowers object removal, strangers seeds 0-1, 16.97 -> "
-        "16.72 dB; see docs/architecture.md).",
+        "off: per-pair registration only (the default: on DEV-MV with all references, auto raises "
+        "restoration 21.83 -> 22.41 dB over mask seeds 0-2 but lowers object removal, strangers seeds "
+        "0-1, 16.97 -> 16.72 dB; see docs/architecture.md).",
     )
     min_agreement: Annotated[float, Range(0, 1)] = setting(
         0.6,
