@@ -4,12 +4,14 @@ reference, in one frame though each pair has its own units."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
 from geofill.camera import Intrinsics
 from geofill.config import FillConfig, MultiViewConfig
-from geofill.multiview import ViewGeometry, common_scales, footprint_crop, multiview_depth
+from geofill.multiview import ViewGeometry, common_scales, footprint_crop, joint_scales, multiview_depth
 from geofill.optimize.stage import Geometry
 from geofill.pipeline import fill
 from geofill.prepare import prepare_views
@@ -91,6 +93,20 @@ def test_the_references_are_placed_in_one_frame(scene):
     assert s1 == pytest.approx(1.0, abs=1e-6) and spread1 < 0.03
     # Reference 2's units are 0.4 of reference 1's: its lengths times 2.5 are in the common frame.
     assert s2 == pytest.approx(UNITS[0] / UNITS[1], rel=0.02) and spread2 < 0.03
+
+
+def test_the_joint_registrations_baselines_fix_the_scales_and_the_spread_measures_them(scene):
+    """Baselines in a joint registration's units (3x the scene's here): they give the scale, and
+    one 10 % off shows as a 10 % spread against the depths."""
+    refs, _ = scene
+    true = [np.linalg.norm(g.geometry.T[:3, 3]) / u for g, u in zip(refs, UNITS, strict=True)]
+    joint = [replace(g, joint_baseline=3.0 * t * f) for g, t, f in zip(refs, true, (1.0, 1.1), strict=True)]
+    known = joint_scales(joint)
+    assert known[0] == pytest.approx(1.0) and known[1] == pytest.approx(1.1 * UNITS[0] / UNITS[1])
+    (s1, spread1), (s2, spread2) = common_scales(joint, known)
+    assert s1 == pytest.approx(1.0) and spread1 < 0.03
+    assert s2 == pytest.approx(known[1]) and spread2 == pytest.approx(0.1, abs=0.03)
+    assert joint_scales([replace(joint[0], joint_baseline=None), joint[1]]) == [None, None]
 
 
 def test_each_footprint_gets_the_true_depth_from_the_other_reference(scene):

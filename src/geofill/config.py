@@ -12,7 +12,8 @@ Sections follow the pipeline, but some are read by more than one stage. Which st
   screen: ``screen``;
 - fuse: ``fusion`` and ``refine.band_px`` (its known ring); composite: ``inpaint`` and
   ``refine.feather_px``;
-- multi-view depth (several references, after optimize): ``multiview``;
+- multi-view depth (several references, after optimize): ``multiview``; joint registration
+  (several references, after match): ``registration``;
 - the reference runner: ``fusion.parallel``; the input checks: the top-level limits; the progress:
   ``time_budget_s``; the batch's reference picker: ``matching`` and ``geometry.min_inliers``.
 
@@ -808,6 +809,43 @@ class FusionConfig:
 
 
 @dataclass
+class RegistrationConfig:
+    """How the cameras are registered with several references."""
+
+    joint: Literal["off", "auto"] = setting(
+        "off",
+        "auto: with two or more references and the 'sfm' extra (pycolmap), register the target and "
+        "every reference together (COLMAP's incremental SfM with bundle adjustment, the hole masked, "
+        "deterministic) after the per-pair focal and pose, and use its focal and pose for each reference "
+        "it places whose own matches agree (``min_agreement``); the others keep the per-pair ones. "
+        "off: per-pair registration only (the default: on DEV-MV with all references, auto raises "
+        "restoration 21.83 -> 22.41 dB over mask seeds 0-2 but lowers object removal, strangers seeds "
+        "0-1, 16.97 -> 16.72 dB; see docs/architecture.md).",
+    )
+    min_agreement: Annotated[float, Range(0, 1)] = setting(
+        0.6,
+        "A reference keeps COLMAP's focal and pose only where they explain at least this fraction of "
+        "as many of its own matches (Sampson within the RANSAC threshold, in front of both cameras) "
+        "as its per-pair focal and pose do; else it keeps the per-pair ones.",
+    )
+    max_features: Annotated[int, Range(256, 65536)] = setting(
+        2048,
+        "SIFT features per image for the joint registration (COLMAP's own detector, no upsampled octave, "
+        "on the images of ``max_side``).",
+    )
+    max_side: Annotated[int, Range(0, 16384)] = setting(
+        1280,
+        "Long side (px) of the images COLMAP sees, at most the working size (0: the working size).",
+    )
+    optimize_joint: bool = setting(
+        False,
+        "Run the optimize stage on the references the joint registration placed; false: they keep its "
+        "pose and focal as they are (the references it left out are optimized as usual). False: DEV-MV "
+        "hole PSNR with every reference 23.00 dB in two runs, true 22.56-22.64.",
+    )
+
+
+@dataclass
 class MultiViewConfig:
     """With several references: each one's depth behind the hole measured from the others
     (:mod:`geofill.multiview`), after every reference has its geometry. A single reference never
@@ -853,6 +891,11 @@ class MultiViewConfig:
         "A reference whose target-view depth disagrees with the first reference's by more than this "
         "(median relative difference after the scale fit) is not placed in the common frame: it is "
         "neither swept nor a view.",
+    )
+    joint_scale: bool = setting(
+        True,
+        "References placed by the joint registration (``registration.joint``) take their scale in the "
+        "common frame from its baselines, one frame for all, instead of the median depth ratio.",
     )
 
 
@@ -941,6 +984,7 @@ class FillConfig:
     fusion: FusionConfig = field(default_factory=FusionConfig)
     screen: ScreenConfig = field(default_factory=ScreenConfig)
     multiview: MultiViewConfig = field(default_factory=MultiViewConfig)
+    registration: RegistrationConfig = field(default_factory=RegistrationConfig)
     working_max_side: Annotated[int, Range(64, 16384)] = setting(
         1280,
         "Geometry (matching, pose, depth, optimisation) runs with the long side capped at this (px); "

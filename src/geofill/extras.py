@@ -21,6 +21,7 @@ EXTRAS: dict[str, str] = {
     "matplotlib": "eval",
     "torch": "torch",
     "pytorch_optimizer": "paper",
+    "pycolmap": "sfm",
 }
 
 

@@ -81,6 +81,9 @@ class ViewGeometry:
     views: WorkingViews
     geometry: Geometry
     points: TriangulatedPoints
+    # Its source->target translation length in the joint registration's units, which every
+    # reference that has one shares (None: registered by its pair alone).
+    joint_baseline: float | None = None
 
 
 @dataclass(frozen=True)
@@ -176,23 +179,37 @@ def _sample(depth: np.ndarray, uv: np.ndarray) -> np.ndarray:
     return out
 
 
-def common_scales(refs: Sequence[ViewGeometry]) -> list[tuple[float, float]]:
+def joint_scales(refs: Sequence[ViewGeometry]) -> list[float | None]:
+    """Per reference, its scale into the first reference's units from the joint registration's
+    baselines (None where it or the first reference has none, or a pose has no translation)."""
+
+    def units(g: ViewGeometry) -> float | None:
+        length = float(np.linalg.norm(g.geometry.T[:3, 3]))
+        return None if g.joint_baseline is None or length < 1e-12 else g.joint_baseline / length
+
+    first = units(refs[0])
+    return [None if first is None or (u := units(g)) is None else u / first for g in refs]
+
+
+def common_scales(
+    refs: Sequence[ViewGeometry], known: Sequence[float | None] | None = None
+) -> list[tuple[float, float]]:
     """Per reference, (scale into the first reference's units, median relative spread of the
-    ratios). Each ratio compares one measured depth with the other reference's at the same target
-    pixel: a reference's triangulated points (target z) against the other's depth splatted into the
-    target, both ways. Dense against dense spread 2-3x as much on the real sets (completed depth
-    on both sides)."""
+    ratios): the ``known`` scale where there is one, else the median ratio. Each ratio compares one
+    measured depth with the other reference's at the same target pixel: a reference's
+    triangulated points (target z) against the other's depth splatted into the target, both ways.
+    Dense against dense spread 2-3x as much on the real sets (completed depth on both sides)."""
     depths = [target_view_depth(g) for g in refs]
     points = [_target_z(g) for g in refs]
     out = []
-    for d, (uv, z) in zip(depths, points, strict=True):
+    for d, (uv, z), given in zip(depths, points, known or [None] * len(refs), strict=True):
         uv0, z0 = points[0]
         log_ratio = np.concatenate([np.log(_sample(depths[0], uv) / z), np.log(z0 / _sample(d, uv0))])
         log_ratio = log_ratio[np.isfinite(log_ratio)]
         if log_ratio.size < _MIN_SHARED:
             out.append((float("nan"), float("nan")))
             continue
-        centre = float(np.median(log_ratio))
+        centre = float(np.median(log_ratio)) if given is None else float(np.log(given))
         out.append((float(np.exp(centre)), float(np.expm1(np.median(np.abs(log_ratio - centre))))))
     return out
 
@@ -388,7 +405,7 @@ def multiview_depth(
     (unchanged where nothing was measured), and what was measured (see the module docstring)."""
     if len(refs) < 2:
         return [g.geometry for g in refs], MultiViewDepth(())
-    placed = common_scales(refs)
+    placed = common_scales(refs, joint_scales(refs) if cfg.joint_scale else None)
     scales = [sc if np.isfinite(sp) and sp <= cfg.max_scale_spread else float("nan") for sc, sp in placed]
     greys = _Greys.of(refs, cfg.max_side)
 

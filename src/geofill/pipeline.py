@@ -31,14 +31,17 @@ import numpy as np
 from .camera import Intrinsics
 from .composite.inpaint import Inpainter, get_inpainter
 from .composite.merge import merge_fill
-from .config import FillConfig
+from .config import FillConfig, OptimizeConfig
 from .depth import BackendChoice, DepthContext, choose_backend
 from .depth.stage import SourceDepth, estimate_depth, rotation_only_depth
 from .errors import ArrayFormatError, ReferenceUnusable
+from .extras import install_hint
 from .focal import FocalEstimate, estimate_focal, shared_estimate, shared_focal_scale
 from .fuse import Fusion, fuse_references
 from .intrinsics import ExifLens
 from .io import LoadedImage, as_rgb_uint8, as_source_mask, validate_pair
+from .joint import agreeing, joint_focal, joint_pose, prior_conflict, register_jointly
+from .joint import available as joint_available
 from .match import Matches, match_pair
 from .multiview import MultiViewDepth, ViewGeometry, multiview_depth
 from .optimize.stage import Geometry, optimize_geometry
@@ -118,6 +121,8 @@ class ReferenceArtifacts:
     render: ReferenceRender | None = None
     refined: RefinedRender | None = None
     screened: ScreenedRender | None = None
+    # Its translation length in the joint registration's units (None: registered by its pair alone).
+    joint_baseline: float | None = None
     dropped: str = ""  # the reason this reference cannot help ("" while it can)
     dropped_at: str = ""  # the stage that found it out
     timings_s: dict[str, float] = field(default_factory=dict)
@@ -314,7 +319,7 @@ def run_reference(
         "pose": lambda a: usable_pose(estimate_pose(a.matches, a.focal.K_target, a.focal.K_source, cfg.geometry, cfg.matching, a.views.px_scale)),
         "triangulate": lambda a: triangulate_inliers(a.matches, a.pose, a.focal, cfg),
         "depth": lambda a: source_depth(a.views, a.focal, a.pose, a.points, ctx.depth_choice, a.source.shape, cfg),
-        "optimize": lambda a: optimize_geometry(a.views, a.focal, a.pose, a.depth, a.matches, cfg.optimize),
+        "optimize": lambda a: optimize_geometry(a.views, a.focal, a.pose, a.depth, a.matches, optimize_config(a, cfg)),
         "render": lambda a: render_reference(a.geometry, a.source, ctx.hole, cfg.render, render_margin_px(cfg)),
         "refine": lambda a: refine_render(ctx.target, ctx.hole, a.source, a.render.render, cfg.refine),
         "screen": lambda a: screen_render(a.refined, ctx.target, ctx.hole, a.source, ctx.shown, a.exclude, a.views, a.matches, a.focal, a.pose, cfg),
@@ -337,6 +342,15 @@ def run_reference(
         if stage == until:
             break
     return replace(a, timings_s={**ref.timings_s, **prog.timings})
+
+
+def optimize_config(ref: ReferenceArtifacts, cfg: FillConfig) -> OptimizeConfig:
+    """The optimize stage's settings for ``ref``: off for a jointly registered reference when
+    ``registration.optimize_joint`` says so."""
+    joint = ref.focal is not None and ref.focal.method == "joint"
+    if joint and not cfg.registration.optimize_joint:
+        return replace(cfg.optimize, enabled=False)
+    return cfg.optimize
 
 
 def _label(index: int, name: str) -> str:
@@ -447,7 +461,8 @@ def fill(
     started = prog.wall_s()
     shared_step = len(images) > 1  # at most one "shared focal" stage
     mv_step = len(images) > 1 and cfg.multiview.depth  # at most one "multi-view depth" stage
-    prog.plan(1 + len(images) * len(REFERENCE_STAGES) + shared_step + mv_step + 2)
+    joint_step = len(images) > 1 and cfg.registration.joint == "auto"  # at most one "joint registration"
+    prog.plan(1 + len(images) * len(REFERENCE_STAGES) + shared_step + joint_step + mv_step + 2)
     with prog.stage("check inputs"):
         ctx = prepare_fill(target, mask, images, cfg, target_exif, prog.say, prog.detail)
     refs = []
@@ -464,6 +479,11 @@ def fill(
         prog.advance(sum(r.focal is not None for r in refs))  # their focal stage will not run
     else:
         prog.advance(shared_step)
+    if joint_step:
+        refs = _run_references(ctx, refs, prog, until="pose")  # the per-pair ones, to compare
+        with prog.stage("joint registration") as notes:
+            refs, words = joint_registration(ctx, refs)
+            notes.append(words)
     multiview = None
     if mv_step:
         refs = _run_references(ctx, refs, prog, until="optimize")
@@ -541,6 +561,77 @@ def shared_focal(refs: list[ReferenceArtifacts], cfg: FillConfig) -> list[Refere
     ]
 
 
+def one_camera(refs: list[ReferenceArtifacts]) -> bool:
+    """Whether the target and these references look like one camera to the joint registration:
+    the same working size and the same focal prior (all default, or one EXIF focal)."""
+    views = [r.views for r in refs if r.views is not None]
+    priors = {(K.width, K.height, K.fx, K.origin) for v in views for K in (v.K_target, v.K_source)}
+    return len(priors) == 1
+
+
+def joint_registration(
+    ctx: FillContext, refs: list[ReferenceArtifacts]
+) -> tuple[list[ReferenceArtifacts], str]:
+    """Every reference with a per-pair focal and pose that the joint registration
+    (:mod:`geofill.joint`) places together with the target, and whose own matches its geometry
+    explains about as well as the per-pair focal and pose do, given COLMAP's focal and pose; the
+    others keep the per-pair ones. Also the line saying what happened."""
+    cfg = ctx.cfg
+    if not joint_available():
+        return (
+            refs,
+            f"per-pair registration: the joint one needs the 'sfm' extra ({install_hint('pycolmap')})",
+        )
+    live = [r for r in refs if r.views is not None]
+    if len(live) < 2:
+        return refs, "per-pair registration: fewer than two references were prepared"
+    first = live[0]
+    estimated = [r.focal.K_target.fx for r in live if r.focal is not None]
+    f_t = float(np.median(estimated)) if estimated else first.views.K_target.fx
+    if one_camera(live):
+        # One camera for all, from the pairs' median: seeding each image with its own pair's
+        # estimate split the camera on fox upper (focal 514-983 px) and COLMAP misplaced a reference by 9 deg.
+        f_s = [f_t] * len(live)
+    else:
+        f_s = [r.focal.K_source.fx if r.focal is not None else r.views.K_source.fx for r in live]
+    cams = register_jointly(
+        first.views.target_gray, first.views.hole, [r.views.source_gray for r in live], f_t, f_s,
+        cfg.registration.max_features, cfg.registration.max_side,
+    )  # fmt: skip
+    cam_of = {r.index: c for r, c in zip(live, cams, strict=True)}
+    out, placed, refused = [], [], []
+    for r in refs:
+        cam = cam_of.get(r.index)
+        if cam is None or r.pose is None or r.dropped:
+            out.append(r)
+            continue
+        v = r.views
+        joint = joint_focal(cam, v.K_target, v.K_source, v.K_target.width, v.K_source.width)
+        conflict = prior_conflict(joint, cfg.intrinsics)
+        pose = (
+            None
+            if conflict
+            else joint_pose(cam, r.matches, joint.K_target, joint.K_source, v.ransac_px, cfg.geometry)
+        )
+        n_joint = 0 if pose is None else int(pose.inliers.sum())
+        n_own = int(agreeing(r.pose.T, r.matches, r.focal.K_target, r.focal.K_source, v.ransac_px).sum())
+        if conflict or n_joint < max(cfg.geometry.min_inliers, cfg.registration.min_agreement * n_own):
+            why = (
+                conflict
+                or f"its matches agree with the joint pose {n_joint}x, with the per-pair one {n_own}x"
+            )
+            refused.append(f"reference {r.index}: {why}")
+            out.append(r)
+            continue
+        baseline = float(np.linalg.norm(cam.T[:3, 3])) if pose.status == "ok" else None
+        out.append(replace(r, focal=joint, pose=pose, joint_baseline=baseline))
+        placed.append(f"{r.index} ({n_joint} matches agree, {n_own} with the per-pair pose)")
+    why = f" (per-pair kept for {'; '.join(refused)})" if refused else ""
+    if not placed:
+        return out, f"COLMAP registered no usable reference with the target: per-pair registration{why}"
+    return out, f"COLMAP registered reference(s) {', '.join(placed)} of {len(refs)} with the target{why}"
+
+
 def multiview_step(
     refs: list[ReferenceArtifacts], cfg: FillConfig
 ) -> tuple[list[ReferenceArtifacts], MultiViewDepth]:
@@ -548,7 +639,7 @@ def multiview_step(
     (:func:`geofill.multiview.multiview_depth`)."""
     live = [r for r in refs if r.geometry is not None and not r.dropped]
     geometries, result = multiview_depth(
-        [ViewGeometry(r.index, r.views, r.geometry, r.points) for r in live],
+        [ViewGeometry(r.index, r.views, r.geometry, r.points, r.joint_baseline) for r in live],
         cfg.multiview,
         cfg.fusion.parallel,
     )

@@ -1,0 +1,199 @@
+"""Joint registration: the pose stage's result from a given pose (known geometry), and COLMAP's
+registration of a real set with GT poses (only where pycolmap and ../shared are there)."""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from geofill.camera import Intrinsics, default_focal_px, make_pose, pose_errors_deg
+from geofill.config import FillConfig, GeometryConfig
+from geofill.joint import JointCamera, joint_focal, joint_pose, register_jointly
+from geofill.pipeline import fill
+from geofill.progress import Progress
+from geofill.synthetic import blanked, make_views
+from test_geometry import K_S, K_T, make_matches
+
+
+def test_joint_pose_keeps_the_matches_of_its_geometry_and_drops_planted_outliers():
+    T = make_pose(Rotation.from_euler("xyz", [2.0, -6.0, 1.0], degrees=True).as_matrix(), [0.6, 0.1, 0.15])
+    m, _ = make_matches(T, n=300)
+    rng = np.random.default_rng(1)
+    bad = rng.choice(300, 60, replace=False)
+    m.pts_source[bad] = rng.uniform([0, 0], [800, 600], (60, 2))
+    cam = JointCamera(make_pose(T[:3, :3], 3.7 * T[:3, 3]), K_T.fx, K_S.fx)  # any scale
+    est = joint_pose(cam, m, K_T, K_S, 2.0, GeometryConfig())
+    assert est is not None and est.status == "ok"
+    assert pose_errors_deg(est.T, T) == pytest.approx((0.0, 0.0), abs=1e-4)
+    assert np.isclose(np.linalg.norm(est.T[:3, 3]), 1.0)
+    good = np.ones(300, bool)
+    good[bad] = False
+    assert est.inliers[good].mean() > 0.95
+    assert est.inliers[bad].mean() < 0.1
+
+
+def test_joint_pose_refuses_a_pose_the_matches_disagree_with():
+    T = make_pose(Rotation.from_euler("y", -4.0, degrees=True).as_matrix(), [0.5, 0.0, 0.1])
+    m, _ = make_matches(T, n=200)
+    wrong = make_pose(Rotation.from_euler("y", 20.0, degrees=True).as_matrix(), [0.0, 0.5, 0.1])
+    assert joint_pose(JointCamera(wrong, K_T.fx, K_S.fx), m, K_T, K_S, 1.0, GeometryConfig()) is None
+
+
+def test_joint_focal_scales_to_the_working_size():
+    K_t, K_s = Intrinsics.from_focal(500.0, 640, 480), Intrinsics.from_focal(500.0, 320, 240)
+    est = joint_focal(JointCamera(np.eye(4), 1200.0, 900.0), K_t, K_s, 1280, 1280)
+    assert est.K_target.fx == pytest.approx(600.0) and est.K_target.fy == pytest.approx(600.0)
+    assert est.K_source.fx == pytest.approx(225.0)
+    assert est.scales == pytest.approx((1.2, 0.45))
+
+
+def _fox_lower():
+    """The fox lower set (GT poses), its GT geometry and the evaluation's seed-0 hole; skips
+    without pycolmap or ../shared."""
+    pytest.importorskip("pycolmap")
+    from geofill.evaluation.pairs import load_pair, pair_geometry, pair_mask
+
+    root = Path(__file__).resolve().parents[2] / "shared/data/multiview/dev_mv_instantngp_fox_lower"
+    if not root.is_dir():
+        pytest.skip(f"{root} missing")
+    pair = load_pair(root)
+    return pair, pair_geometry(pair), np.asarray(pair_mask(pair, 0)) > 0
+
+
+def test_colmap_registers_every_fox_reference_within_a_degree_of_its_gt_pose_the_same_twice():
+    """COLMAP's estimate on a real set with GT poses, the evaluation's hole masked, started from
+    the default focal prior; a second run gives the same cameras to the bit."""
+    pair, geo, hole = _fox_lower()
+    h, w = pair.target.shape[:2]
+    f0 = default_focal_px(w, h)
+    cams = register_jointly(pair.target, hole, pair.sources, f0, [f0] * len(pair.sources))
+    assert len(cams) == len(pair.sources) and all(c is not None for c in cams)
+    for c, T in zip(cams, geo.T_source_to_target, strict=True):
+        assert pose_errors_deg(c.T, T)[0] < 1.0
+        assert c.focal_target == pytest.approx(geo.K_target[0, 0], rel=0.03)
+    again = register_jointly(pair.target, hole, pair.sources, f0, [f0] * len(pair.sources))
+    for a, b in zip(cams, again, strict=True):
+        assert np.array_equal(a.T, b.T) and a.focal_target == b.focal_target
+
+
+def _rendered_views():
+    """Three rendered views (focal 300 px, 640x480: the default prior says 375) and a hole."""
+    pytest.importorskip("pycolmap")
+    v = make_views(0, 640, 480, focal_px=300.0)
+    hole = np.zeros((480, 640), bool)
+    hole[180:300, 260:380] = True
+    return v, hole
+
+
+def test_a_fill_on_rendered_views_gets_colmaps_focal_and_pose_right():
+    """The joint registration starts from the pairs' focal estimate: started from the default
+    prior instead, COLMAP flips these scenes' translation (see the next test)."""
+    v, hole = _rendered_views()
+    result = fill(
+        blanked(v.target, hole), hole, v.sources, FillConfig().updated({"registration.joint": "auto"})
+    )
+    for ref, T in zip(result.references, v.T_source_to_target, strict=True):
+        assert ref.focal.method == "joint" and ref.pose.status == "ok"
+        assert ref.focal.K_target.fx == pytest.approx(300.0, rel=0.02)
+        assert max(pose_errors_deg(ref.pose.T, T)) < 1.0
+
+
+def test_a_colmap_model_the_pairs_matches_contradict_is_refused_for_the_per_pair_one(monkeypatch):
+    """COLMAP started from the default prior on the rendered views: focal x1.4, translation
+    ~155 deg off. Every reference keeps its per-pair focal and pose, to the bit, and the stage
+    line says why."""
+    import geofill.pipeline as pipeline
+
+    v, hole = _rendered_views()
+    f0 = default_focal_px(640, 480)
+    bad = register_jointly(v.target, hole, v.sources, f0, [f0, f0])
+    assert all(max(pose_errors_deg(c.T, T)) > 90 for c, T in zip(bad, v.T_source_to_target, strict=True))
+    monkeypatch.setattr(pipeline, "register_jointly", lambda *a: bad)
+    out = io.StringIO()
+    target = blanked(v.target, hole)
+    cfg = FillConfig().updated({"registration.joint": "auto"})
+    joint = fill(target, hole, v.sources, cfg, progress=Progress(verbose=True, stream=out))
+    per_pair = fill(target, hole, v.sources, FillConfig().updated({"registration.joint": "off"}))
+    for a, b in zip(joint.references, per_pair.references, strict=True):
+        assert a.focal.method == "search" and a.focal.K_target.fx == b.focal.K_target.fx
+        assert np.array_equal(a.pose.T, b.pose.T)
+    line = next(x for x in out.getvalue().splitlines() if "joint registration" in x)
+    assert "per-pair kept for reference 1" in line and "reference 2" in line
+
+
+def test_fill_with_joint_registration_uses_colmaps_focal_and_pose_for_every_fox_reference():
+    pair, geo, hole = _fox_lower()
+    target = pair.target.copy()
+    target[hole] = 0
+    result = fill(target, hole, pair.sources, FillConfig().updated({"registration.joint": "auto"}))
+    h, w = target.shape[:2]
+    for ref, T in zip(result.references, geo.T_source_to_target, strict=True):
+        assert ref.focal.method == "joint" and ref.pose.status == "ok"
+        assert pose_errors_deg(ref.pose.T, T)[0] < 1.0
+        assert ref.focal.K_target.resized(w, h).fx == pytest.approx(geo.K_target[0, 0], rel=0.03)
+
+
+def test_optimize_is_switched_off_only_for_jointly_registered_references_when_asked():
+    from geofill.config import FillConfig
+    from geofill.focal import FocalEstimate
+    from geofill.pipeline import ReferenceArtifacts, optimize_config
+
+    K = Intrinsics.from_focal(500.0, 640, 480)
+    joint = ReferenceArtifacts(
+        1,
+        np.zeros((480, 640, 3), np.uint8),
+        focal=joint_focal(JointCamera(np.eye(4), 600.0, 600.0), K, K, 640, 640),
+    )
+    pair = ReferenceArtifacts(
+        2, np.zeros((480, 640, 3), np.uint8), focal=FocalEstimate(K, K, "prior", "search", "", K, K, [])
+    )
+    keep = FillConfig()  # registration.optimize_joint is false by default
+    assert not optimize_config(joint, keep).enabled
+    assert optimize_config(pair, keep).enabled
+    assert optimize_config(joint, FillConfig().updated({"registration.optimize_joint": True})).enabled
+
+
+def test_a_joint_focal_that_contradicts_an_exif_prior_is_refused():
+    from dataclasses import replace
+
+    from geofill.config import IntrinsicsConfig
+    from geofill.joint import prior_conflict
+
+    exif = replace(Intrinsics.from_focal(1035.0, 1024, 768), origin="exif")
+    default = Intrinsics.from_focal(600.0, 1024, 768)
+    cfg = IntrinsicsConfig()  # EXIF prior +-5 %, refused beyond 3 sigma
+    assert "contradicts the exif prior" in prior_conflict(
+        joint_focal(JointCamera(np.eye(4), 750.0, 1035.0), exif, exif, 1024, 1024), cfg
+    )
+    assert (
+        prior_conflict(joint_focal(JointCamera(np.eye(4), 1080.0, 1035.0), exif, exif, 1024, 1024), cfg) == ""
+    )
+    assert (
+        prior_conflict(joint_focal(JointCamera(np.eye(4), 1200.0, 1200.0), default, default, 1024, 1024), cfg)
+        == ""
+    )
+    given = replace(default, origin="flag")
+    assert "given" in prior_conflict(
+        joint_focal(JointCamera(np.eye(4), 600.0, 600.0), given, default, 1024, 1024), cfg
+    )
+
+
+def test_without_pycolmap_the_stage_line_names_the_extra_and_a_single_reference_never_plans_it(monkeypatch):
+    import geofill.pipeline as pipeline
+
+    monkeypatch.setattr(pipeline, "joint_available", lambda: False)
+    v = make_views(seed=0, width=320, height=240)
+    hole = np.zeros((240, 320), bool)
+    hole[90:150, 130:190] = True
+    cfg = FillConfig().updated({"registration.joint": "auto"})
+    lines = {}
+    for name, sources in (("two", v.sources), ("one", v.sources[:1])):
+        out = io.StringIO()
+        fill(blanked(v.target, hole), hole, sources, cfg, progress=Progress(verbose=True, stream=out))
+        lines[name] = [x for x in out.getvalue().splitlines() if "joint registration" in x]
+    assert len(lines["two"]) == 1 and 'pip install "geofill[sfm]"' in lines["two"][0]
+    assert lines["one"] == []
