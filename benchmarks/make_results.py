@@ -76,8 +76,9 @@ SECTIONS = [
         "(`benchmarks/quality/multiview_seeds.py`)",
         "The multi-view targets on the mean of seeds 0-2 (one seed's holes can favour either side): all "
         "references minus the best single reference per set and seed, and the sets where all references "
-        "are at least as good.",
-        [PY, "benchmarks/quality/multiview_seeds.py"],
+        "are at least as good; `joint` is the opt-in joint registration (`registration.joint=auto`, the "
+        "`sfm` extra).",
+        [PY, "benchmarks/quality/multiview_seeds.py", "--variant", "joint:registration.joint=auto"],
     ),
     Section(
         "multiview_graphcut",
