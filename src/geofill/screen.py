@@ -243,7 +243,7 @@ def _strangers(
     # a stranger does not.
     reach = 12.0 * px
     seeds = ring & (diff > sc.stranger_threshold) & (raw > sc.stranger_threshold)
-    seeds &= _shifted_min_diff(render, level, k, reach) > sc.stranger_threshold
+    seeds &= _shifted_min_diff(render, level, k, reach) > sc.stranger_shift_threshold
     # An opening removes the thin lines that misalignment leaves along edges.
     m = max(3, _odd(sc.stranger_min_px / 2 * px))
     seeds = cv2.morphologyEx(seeds.astype(np.uint8), cv2.MORPH_OPEN, np.ones((m, m), np.uint8))
@@ -375,8 +375,8 @@ def _cross_strangers(
             diff = cv2.blur(np.abs(images[i] - images[j]).mean(axis=2), (k, k))
             apart = both & (diff > sc.stranger_threshold)
             if apart.any():
-                apart &= _shifted_min_diff(images[i], images[j], k, reach) > sc.stranger_threshold
-                apart &= _shifted_min_diff(images[j], images[i], k, reach) > sc.stranger_threshold
+                apart &= _shifted_min_diff(images[i], images[j], k, reach) > sc.cross_shift_threshold
+                apart &= _shifted_min_diff(images[j], images[i], k, reach) > sc.cross_shift_threshold
             disagree[i, j] = disagree[j, i] = apart
             close = both & (diff < sc.stranger_agreement)
             agree[i] |= close
