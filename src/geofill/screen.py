@@ -193,8 +193,9 @@ def strangers(
     """Hole pixels of a window (covered by ``alpha``) whose render continues content that the target
     does not show around the hole: regions of the render within ``sc.stranger_ring_px`` of the hole
     that disagree with ``target`` (after the median colour difference there is taken out; over
-    ``sc.stranger_threshold``, also with the render shifted by up to 12 px; wide and large enough,
-    near the hole) are grown into it by the watershed, against the pixels that agree with the target
+    ``sc.stranger_threshold``, and over ``sc.stranger_shift_threshold`` with the render shifted by
+    up to 12 px; wide and large enough, near the hole) are grown into it by the watershed, against
+    the pixels that agree with the target
     (under ``sc.stranger_agreement``). ``shape``: the full target's, for pixel scaling. Runs with
     the window's long side at most :data:`STRANGER_TEST_SIDE`.
 
@@ -294,7 +295,8 @@ def cross_strangers(
     stage's scores).
 
     Two renders disagree where their colours differ by more than ``sc.stranger_threshold`` (over a
-    5-px box, also with either one shifted by up to 12 px: misalignment is not disagreement).
+    5-px box), and by more than ``sc.cross_shift_threshold`` with either one shifted by up to 12 px
+    (misalignment is not disagreement).
     Where three or more cover a pixel, a render that disagrees with all the others there, while two
     of them agree with each other and are trusted at least ``ratio`` times as much, is the
     stranger. Where two cover it, the stranger is the render that continues a region the stranger
