@@ -195,9 +195,8 @@ def strangers(
     that disagree with ``target`` (after the median colour difference there is taken out; over
     ``sc.stranger_threshold``, and over ``sc.stranger_shift_threshold`` with the render shifted by
     up to 12 px; wide and large enough, near the hole) are grown into it by the watershed, against
-    the pixels that agree with the target
-    (under ``sc.stranger_agreement``). ``shape``: the full target's, for pixel scaling. Runs with
-    the window's long side at most :data:`STRANGER_TEST_SIDE`.
+    the pixels that agree with the target (under ``sc.stranger_agreement``). ``shape``: the full
+    target's, for pixel scaling. Runs with the window's long side at most :data:`STRANGER_TEST_SIDE`.
 
     >>> hole = np.zeros((40, 60), bool); hole[10:30, 20:40] = True
     >>> target = np.full((40, 60, 3), 120, np.uint8); target[hole] = 0
