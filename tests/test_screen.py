@@ -89,3 +89,57 @@ def test_a_stranger_reaching_beyond_the_hole_is_not_copied(pair, plain):
     assert red(on.image).sum() < 0.15 * red(off.image).sum()
     assert on.report.refused_fraction["stranger"] == pytest.approx(refused.sum() / pair.hole.sum())
     assert "your photo does not show around it" in on.report.refused_words()
+
+
+def _stripes(h: int, w: int, lo: int, hi: int, phase: int = 0) -> np.ndarray:
+    """Vertical stripes 8 px wide, alternately ``lo`` and ``hi`` grey, moved left by ``phase`` px."""
+    row = np.where(((np.arange(w) + phase) // 8) % 2 == 0, lo, hi).astype(np.uint8)
+    return np.repeat(np.repeat(row[None, :, None], h, 0), 3, 2)
+
+
+# A stranger that differs from the background by 110 levels where it stands, but only by 30 once
+# shifted by 8 px: the background's stripes in opposite phase and lower contrast. A textured
+# stranger often matches its background this far under some shift; misalignment matches it closely.
+_H, _W = 120, 200
+_HOLE = np.zeros((_H, _W), bool)
+_HOLE[30:90, 60:140] = True
+_BACKGROUND = _stripes(_H, _W, 60, 200)
+_STRANGER_STRIPES = _stripes(_H, _W, 90, 170, 8)
+
+
+def test_a_textured_stranger_that_matches_its_background_in_part_once_shifted_is_refused():
+    from geofill.screen import strangers
+
+    target = _BACKGROUND.copy()
+    target[_HOLE] = 0
+    render = _BACKGROUND.copy()
+    there = np.zeros((_H, _W), bool)
+    there[20:100, 100:170] = True  # reaches beyond the hole on the right
+    render[there] = _STRANGER_STRIPES[there]
+    alpha = np.ones((_H, _W), bool)
+    sc = FillConfig().screen
+    found = strangers(render, target, _HOLE, alpha, (720, 1280), sc)
+    assert found[there & _HOLE].mean() > 0.95
+    assert not found[~there & _HOLE].any()
+    # Under the former threshold (45, the stranger test's own) the shifted difference of 30 passed.
+    loose = FillConfig().updated({"screen.stranger_shift_threshold": 45.0}).screen
+    assert not strangers(render, target, _HOLE, alpha, (720, 1280), loose).any()
+
+
+def test_a_textured_stranger_inside_the_hole_is_outvoted_once_the_shift_cannot_explain_it():
+    from geofill.screen import cross_strangers
+
+    target = _BACKGROUND.copy()
+    target[_HOLE] = 0
+    images = np.stack([_BACKGROUND] * 3).astype(np.float32)
+    inside = np.zeros((_H, _W), bool)
+    inside[40:80, 75:125] = True  # wholly inside the hole's footprint
+    images[2][inside] = _STRANGER_STRIPES[inside]
+    alphas = np.ones((3, _H, _W), bool)
+    none = np.zeros((3, _H, _W), bool)
+    found = cross_strangers(images, alphas, _HOLE, target, none, (720, 1280), FillConfig().screen)
+    assert found[2][inside].mean() > 0.97
+    assert found[2][~inside].sum() < 0.05 * inside.sum()  # the watershed's seam around it
+    assert not found[:2].any()
+    loose = FillConfig().updated({"screen.cross_shift_threshold": 45.0}).screen
+    assert not cross_strangers(images, alphas, _HOLE, target, none, (720, 1280), loose).any()

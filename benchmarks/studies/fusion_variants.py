@@ -9,8 +9,8 @@ the removal protocols).
 ``--oracle`` also prints, per set, on the hole pixels the fused render covers: the fused render's
 PSNR, and the renders chosen knowing the truth per pixel and per 24-px box (the box's mean error).
 
-A variant is comma-separated ``--set`` items (empty: the defaults); settings the screen stage reads
-take effect in the fuse stage only (the screen runs once, with the defaults). ``--cache`` keeps the
+A variant is comma-separated ``--set`` items (empty: the defaults); the screen stage runs per
+variant (with its settings), the stages before it once with the defaults. ``--cache`` keeps the
 renders (pickles) between runs. Prints one line per variant: mean hole PSNR, mean leak, median fuse
 time, then each set's figures.
 """
@@ -30,34 +30,36 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository r
 from benchmarks.common import MULTIVIEW
 
 
-def _cases(pairs: str, protocol: str):
+def _cases(pairs: list[str], protocol: str, seed: int):
     """(set id, pair as given to the method, target as given, hole, truth, leak objects or None)."""
     from geofill.evaluation.pairs import load_pairs, pair_mask
     from geofill.evaluation.removal import ProtocolSkip, make_case
     from geofill.synthetic import blanked
 
-    for pair in load_pairs([pairs]):
+    for pair in load_pairs(pairs):
         if len(pair.sources) < 2:
             continue
         if protocol == "restoration":
-            hole = pair_mask(pair, 0)
+            hole = pair_mask(pair, seed)
             yield pair.id, pair, blanked(pair.target, hole), hole, pair.target, None
             continue
         try:
-            case = make_case(protocol, pair, 0)
+            case = make_case(protocol, pair, seed)
         except ProtocolSkip as exc:
             print(f"{pair.id}: skipped: {exc}", file=sys.stderr)
             continue
         yield pair.id, case.pair, case.pair.target, case.hole, case.truth, case.objects
 
 
-def _renders(pairs: str, protocol: str, cache: Path | None) -> list[tuple]:
-    """Per set: (id, context, references up to the screen stage, hole, truth, objects)."""
+def _renders(pairs: list[str], protocol: str, cache: Path | None, seed: int = 0) -> list[tuple]:
+    """Per set: (id, context, references up to the refine stage, hole, truth, objects), the
+    references through the same stages as :func:`geofill.pipeline.fill` runs them."""
     from geofill.config import FillConfig
     from geofill.io import as_rgb_uint8
     from geofill.pipeline import (
         ReferenceArtifacts,
         _run_references,
+        multiview_step,
         prepare_fill,
         shared_focal,
         shares_camera,
@@ -66,8 +68,8 @@ def _renders(pairs: str, protocol: str, cache: Path | None) -> list[tuple]:
 
     cfg = FillConfig()
     out = []
-    for set_id, pair, shown, hole, truth, objects in _cases(pairs, protocol):
-        path = cache / f"{protocol}_{set_id}.pkl" if cache else None
+    for set_id, pair, shown, hole, truth, objects in _cases(pairs, protocol, seed):
+        path = cache / f"{protocol}_{seed}_{set_id}.pkl" if cache else None
         if path is not None and path.is_file():
             ctx, refs = pickle.loads(path.read_bytes())
             ctx = replace(ctx, inpainter=prepare_fill(shown, hole, pair.sources, cfg).inpainter)
@@ -81,20 +83,30 @@ def _renders(pairs: str, protocol: str, cache: Path | None) -> list[tuple]:
             prog = Progress(quiet=True)
             if shares_camera(ctx, refs):
                 refs = shared_focal(_run_references(ctx, refs, prog, until="match"), cfg)
+            if cfg.multiview.depth:
+                refs, _ = multiview_step(_run_references(ctx, refs, prog, until="optimize"), cfg)
             refs = _run_references(ctx, refs, prog, until="refine")
             print(f"{set_id}: renders in {time.perf_counter() - t0:.1f} s", file=sys.stderr)
             if path is not None:
                 path.parent.mkdir(parents=True, exist_ok=True)
                 path.write_bytes(pickle.dumps((replace(ctx, inpainter=None), refs)))
-        refs = _run_references(ctx, refs, Progress(quiet=True))  # the screen stage
         out.append((set_id, ctx, refs, hole, truth, objects))
     return out
+
+
+def screened(ctx, refs: list, cfg) -> list:
+    """The references through the screen stage under ``cfg``."""
+    from geofill.pipeline import _run_references
+    from geofill.progress import Progress
+
+    return _run_references(replace(ctx, cfg=cfg), refs, Progress(quiet=True))
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--protocol", default="restoration", choices=("restoration", "static", "strangers"))
-    ap.add_argument("--pairs", default=str(MULTIVIEW))
+    ap.add_argument("--pairs", action="append", default=None, help=f"as geofill eval's (default {MULTIVIEW})")
+    ap.add_argument("--seed", type=int, default=0, help="mask and protocol seed, as geofill eval's")
     ap.add_argument("--variant", action="append", default=None, help="comma-separated key=value (repeatable)")
     ap.add_argument("--cache", type=Path, help="folder keeping the renders between runs")
     ap.add_argument("--oracle", action="store_true", help="also the choices made knowing the truth")
@@ -105,12 +117,13 @@ def main(argv: list[str] | None = None) -> int:
     from geofill.fuse import fuse_references
     from geofill.pipeline import composite
 
-    sets = _renders(args.pairs, args.protocol, args.cache)
+    sets = _renders(args.pairs or [str(MULTIVIEW)], args.protocol, args.cache, args.seed)
     for variant in args.variant or [""]:
         items = [v for v in variant.split(",") if v]
         cfg = FillConfig().updated(parse_overrides(items)) if items else FillConfig()
         scores, leaks, times, cells = [], [], [], []
         for set_id, ctx, refs, hole, truth, objects in sets:
+            refs = screened(ctx, refs, cfg)
             t0 = time.perf_counter()
             fusion = fuse_references(ctx.target, ctx.hole, [r for r in refs if r.usable], cfg)
             times.append(time.perf_counter() - t0)
@@ -125,7 +138,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"[{variant or 'defaults'}] {head}, fuse {np.median(times):.2f} s | " + ", ".join(cells))
     if args.oracle:
         for set_id, ctx, refs, hole, truth, _ in sets:
-            _oracle(set_id, ctx, [r for r in refs if r.usable], hole, truth)
+            _oracle(set_id, ctx, [r for r in screened(ctx, refs, ctx.cfg) if r.usable], hole, truth)
     return 0
 
 

@@ -962,6 +962,19 @@ class ScreenConfig:
     stranger_ring_px: Annotated[float, Range(1, 1000)] = setting(
         64.0, "How far around the hole (px) the render is compared with the target for that test."
     )
+    stranger_shift_threshold: Annotated[float, Range(0, 255)] = setting(
+        20.0,
+        "A region that differs from the target around the hole (or, between references, from another "
+        "render) counts as other content only where it still differs by more than this once shifted by up to "
+        "12 px (the smallest box difference over the shifts): a render that is only misaligned agrees once "
+        "shifted, while a textured stranger finds some shift that matches its background in part.",
+    )
+    cross_shift_threshold: Annotated[float, Range(0, 255)] = setting(
+        20.0,
+        "The same for two references' renders in the test between references "
+        "(``fusion.cross_strangers``): they disagree only where they still differ by more than this with "
+        "either one shifted by up to 12 px.",
+    )
     stranger_min_px: Annotated[float, Range(1, 1000)] = setting(
         8.0,
         "Disagreeing regions thinner than half of this or smaller than its square (px) are misalignment at "

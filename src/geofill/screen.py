@@ -193,10 +193,10 @@ def strangers(
     """Hole pixels of a window (covered by ``alpha``) whose render continues content that the target
     does not show around the hole: regions of the render within ``sc.stranger_ring_px`` of the hole
     that disagree with ``target`` (after the median colour difference there is taken out; over
-    ``sc.stranger_threshold``, also with the render shifted by up to 12 px; wide and large enough,
-    near the hole) are grown into it by the watershed, against the pixels that agree with the target
-    (under ``sc.stranger_agreement``). ``shape``: the full target's, for pixel scaling. Runs with
-    the window's long side at most :data:`STRANGER_TEST_SIDE`.
+    ``sc.stranger_threshold``, and over ``sc.stranger_shift_threshold`` with the render shifted by
+    up to 12 px; wide and large enough, near the hole) are grown into it by the watershed, against
+    the pixels that agree with the target (under ``sc.stranger_agreement``). ``shape``: the full
+    target's, for pixel scaling. Runs with the window's long side at most :data:`STRANGER_TEST_SIDE`.
 
     >>> hole = np.zeros((40, 60), bool); hole[10:30, 20:40] = True
     >>> target = np.full((40, 60, 3), 120, np.uint8); target[hole] = 0
@@ -243,7 +243,7 @@ def _strangers(
     # a stranger does not.
     reach = 12.0 * px
     seeds = ring & (diff > sc.stranger_threshold) & (raw > sc.stranger_threshold)
-    seeds &= _shifted_min_diff(render, level, k, reach) > sc.stranger_threshold
+    seeds &= _shifted_min_diff(render, level, k, reach) > sc.stranger_shift_threshold
     # An opening removes the thin lines that misalignment leaves along edges.
     m = max(3, _odd(sc.stranger_min_px / 2 * px))
     seeds = cv2.morphologyEx(seeds.astype(np.uint8), cv2.MORPH_OPEN, np.ones((m, m), np.uint8))
@@ -294,7 +294,8 @@ def cross_strangers(
     stage's scores).
 
     Two renders disagree where their colours differ by more than ``sc.stranger_threshold`` (over a
-    5-px box, also with either one shifted by up to 12 px: misalignment is not disagreement).
+    5-px box), and by more than ``sc.cross_shift_threshold`` with either one shifted by up to 12 px
+    (misalignment is not disagreement).
     Where three or more cover a pixel, a render that disagrees with all the others there, while two
     of them agree with each other and are trusted at least ``ratio`` times as much, is the
     stranger. Where two cover it, the stranger is the render that continues a region the stranger
@@ -375,8 +376,8 @@ def _cross_strangers(
             diff = cv2.blur(np.abs(images[i] - images[j]).mean(axis=2), (k, k))
             apart = both & (diff > sc.stranger_threshold)
             if apart.any():
-                apart &= _shifted_min_diff(images[i], images[j], k, reach) > sc.stranger_threshold
-                apart &= _shifted_min_diff(images[j], images[i], k, reach) > sc.stranger_threshold
+                apart &= _shifted_min_diff(images[i], images[j], k, reach) > sc.cross_shift_threshold
+                apart &= _shifted_min_diff(images[j], images[i], k, reach) > sc.cross_shift_threshold
             disagree[i, j] = disagree[j, i] = apart
             close = both & (diff < sc.stranger_agreement)
             agree[i] |= close
