@@ -56,14 +56,7 @@ def _renders(pairs: list[str], protocol: str, cache: Path | None, seed: int = 0)
     references through the same stages as :func:`geofill.pipeline.fill` runs them."""
     from geofill.config import FillConfig
     from geofill.io import as_rgb_uint8
-    from geofill.pipeline import (
-        ReferenceArtifacts,
-        _run_references,
-        multiview_step,
-        prepare_fill,
-        shared_focal,
-        shares_camera,
-    )
+    from geofill.pipeline import ReferenceArtifacts, prepare_fill, run_all_references
     from geofill.progress import Progress
 
     cfg = FillConfig()
@@ -80,12 +73,7 @@ def _renders(pairs: list[str], protocol: str, cache: Path | None, seed: int = 0)
                 ReferenceArtifacts(i + 1, as_rgb_uint8(s), e)
                 for i, (s, e) in enumerate(zip(pair.sources, pair.exif.sources, strict=True))
             ]
-            prog = Progress(quiet=True)
-            if shares_camera(ctx, refs):
-                refs = shared_focal(_run_references(ctx, refs, prog, until="match"), cfg)
-            if cfg.multiview.depth:
-                refs, _ = multiview_step(_run_references(ctx, refs, prog, until="optimize"), cfg)
-            refs = _run_references(ctx, refs, prog, until="refine")
+            refs, _ = run_all_references(ctx, refs, Progress(quiet=True), until="refine")
             print(f"{set_id}: renders in {time.perf_counter() - t0:.1f} s", file=sys.stderr)
             if path is not None:
                 path.parent.mkdir(parents=True, exist_ok=True)

@@ -82,13 +82,7 @@ def own(
     """geofill's source->target poses and target focal (px, at the input size) per reference, and
     the wall time of its registration (every reference up to ``optimize``)."""
     from geofill.config import FillConfig
-    from geofill.pipeline import (
-        ReferenceArtifacts,
-        _run_references,
-        prepare_fill,
-        shared_focal,
-        shares_camera,
-    )
+    from geofill.pipeline import ReferenceArtifacts, prepare_fill, run_all_references
     from geofill.progress import Progress
 
     t0 = time.perf_counter()
@@ -97,10 +91,7 @@ def own(
     target[hole] = 0
     ctx = prepare_fill(target, hole.astype(np.uint8) * 255, pair.sources, cfg)
     refs = [ReferenceArtifacts(i + 1, s) for i, s in enumerate(pair.sources)]
-    prog = Progress()
-    if shares_camera(ctx, refs):
-        refs = shared_focal(_run_references(ctx, refs, prog, until="match"), cfg)
-    refs = _run_references(ctx, refs, prog, until="optimize")
+    refs, _ = run_all_references(ctx, refs, Progress(), until="optimize")
     wall = time.perf_counter() - t0
     poses, focals = [], []
     h, w = pair.target.shape[:2]

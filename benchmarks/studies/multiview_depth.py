@@ -41,14 +41,7 @@ def main(argv: list[str] | None = None) -> int:
     from geofill.config import FillConfig, parse_overrides
     from geofill.evaluation.pairs import load_pair, pair_geometry, pair_mask
     from geofill.multiview import ViewGeometry, footprint_crop
-    from geofill.pipeline import (
-        ReferenceArtifacts,
-        _run_references,
-        multiview_step,
-        prepare_fill,
-        shared_focal,
-        shares_camera,
-    )
+    from geofill.pipeline import ReferenceArtifacts, multiview_step, prepare_fill, run_all_references
     from geofill.progress import Progress
     from geofill.synthetic import blanked
 
@@ -68,9 +61,7 @@ def main(argv: list[str] | None = None) -> int:
             hole = pair_mask(pair, seed)
             ctx = prepare_fill(blanked(pair.target, hole), hole, pair.sources, cfg)
             refs = [ReferenceArtifacts(i + 1, s) for i, s in enumerate(pair.sources)]
-            if shares_camera(ctx, refs):  # as fill() runs them
-                refs = shared_focal(_run_references(ctx, refs, Progress(quiet=True), until="match"), cfg)
-            refs = _run_references(ctx, refs, Progress(quiet=True), until="optimize")
+            refs, _ = run_all_references(ctx, refs, Progress(quiet=True), until="optimize")
             after, mv = multiview_step(refs, cfg)
             measured = {r.index: r.measured_fraction for r in mv.references}
             for r0, r1 in zip(refs, after, strict=True):

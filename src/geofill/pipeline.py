@@ -459,10 +459,9 @@ def fill(
     if len(masks) != len(images):
         raise ArrayFormatError(f"{len(masks)} source masks for {len(images)} sources")
     started = prog.wall_s()
-    shared_step = len(images) > 1  # at most one "shared focal" stage
-    mv_step = len(images) > 1 and cfg.multiview.depth  # at most one "multi-view depth" stage
-    joint_step = len(images) > 1 and cfg.registration.joint == "auto"  # at most one "joint registration"
-    prog.plan(1 + len(images) * len(REFERENCE_STAGES) + shared_step + joint_step + mv_step + 2)
+    many = len(images) > 1  # at most one of each step across references ("shared focal", ...)
+    steps = many * (1 + (cfg.registration.joint == "auto") + cfg.multiview.depth)
+    prog.plan(1 + len(images) * len(REFERENCE_STAGES) + steps + 2)
     with prog.stage("check inputs"):
         ctx = prepare_fill(target, mask, images, cfg, target_exif, prog.say, prog.detail)
     refs = []
@@ -471,26 +470,7 @@ def fill(
         exclude = None if m is None else as_source_mask(m, source, f"mask of source {i + 1}")
         name = source_names[i] if source_names is not None else ""
         refs.append(ReferenceArtifacts(i + 1, source, e, exclude, name=name))
-    if shares_camera(ctx, refs):
-        refs = _run_references(ctx, refs, prog, until="match")
-        with prog.stage("shared focal") as notes:
-            refs = shared_focal(refs, cfg)
-            notes.append(next((r.focal.summary() for r in refs if r.focal is not None), "no usable pair"))
-        prog.advance(sum(r.focal is not None for r in refs))  # their focal stage will not run
-    else:
-        prog.advance(shared_step)
-    if joint_step:
-        refs = _run_references(ctx, refs, prog, until="pose")  # the per-pair ones, to compare
-        with prog.stage("joint registration") as notes:
-            refs, words = joint_registration(ctx, refs)
-            notes.append(words)
-    multiview = None
-    if mv_step:
-        refs = _run_references(ctx, refs, prog, until="optimize")
-        with prog.stage("multi-view depth") as notes:
-            refs, multiview = multiview_step(refs, cfg)
-            notes.append(multiview.summary())
-    refs = _run_references(ctx, refs, prog)
+    refs, multiview = run_all_references(ctx, refs, prog)
     with prog.stage("fuse") as notes:
         fusion = fuse_references(ctx.target, ctx.hole, [r for r in refs if r.usable], cfg)
         notes.append(fusion.summary())
@@ -645,6 +625,44 @@ def multiview_step(
     )
     new = {r.index: g for r, g in zip(live, geometries, strict=True)}
     return [replace(r, geometry=new[r.index]) if r.index in new else r for r in refs], result
+
+
+def run_all_references(
+    ctx: FillContext, refs: list[ReferenceArtifacts], prog: Progress, until: str | None = None
+) -> tuple[list[ReferenceArtifacts], MultiViewDepth | None]:
+    """Every reference through its stages up to ``until`` (all by default) as :func:`fill` runs
+    them, with the steps across references where their stage has passed: one focal for a shared
+    camera after ``match``, the joint registration after ``pose``, the multi-view depth after
+    ``optimize`` (its result, else None)."""
+    cfg = ctx.cfg
+    names = [s for s, _ in REFERENCE_STAGES]
+    last = names.index(until) if until is not None else len(names) - 1
+
+    def past(stage: str) -> bool:
+        return last > names.index(stage)
+
+    many = len(refs) > 1
+    if past("match"):
+        if shares_camera(ctx, refs):
+            refs = _run_references(ctx, refs, prog, until="match")
+            with prog.stage("shared focal") as notes:
+                refs = shared_focal(refs, cfg)
+                notes.append(next((r.focal.summary() for r in refs if r.focal is not None), "no usable pair"))
+            prog.advance(sum(r.focal is not None for r in refs))  # their focal stage will not run
+        else:
+            prog.advance(many)
+    if many and cfg.registration.joint == "auto" and past("pose"):
+        refs = _run_references(ctx, refs, prog, until="pose")  # the per-pair ones, to compare
+        with prog.stage("joint registration") as notes:
+            refs, words = joint_registration(ctx, refs)
+            notes.append(words)
+    multiview = None
+    if many and cfg.multiview.depth and past("optimize"):
+        refs = _run_references(ctx, refs, prog, until="optimize")
+        with prog.stage("multi-view depth") as notes:
+            refs, multiview = multiview_step(refs, cfg)
+            notes.append(multiview.summary())
+    return _run_references(ctx, refs, prog, until=until), multiview
 
 
 def _run_references(
