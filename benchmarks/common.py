@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import os
 import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -36,6 +37,14 @@ def timed_child(cmd: list[str], env: dict[str, str] | None = None) -> tuple[floa
             text = err.read().decode(errors="replace").strip()[-500:]
             raise RuntimeError(f"{' '.join(cmd)} failed ({proc.returncode}): {text}")
     return wall, usage.ru_maxrss / 1024.0
+
+
+def earlier_cli(*args: str) -> list[str]:
+    """The command running an earlier tree's ``geofill`` with ``args`` as its console script does
+    (``run()`` of its ``geofill.cli``, or ``main()`` where there was no ``run()`` yet), with its own
+    defaults: it need not know today's config keys. Put that tree's src on PYTHONPATH."""
+    launch = "import sys; from geofill import cli; sys.exit((getattr(cli, 'run', None) or cli.main)())"
+    return [sys.executable, "-c", launch, *args]
 
 
 def export_src(rev: str, folder: Path) -> str:

@@ -23,7 +23,7 @@ import tempfile
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root: benchmarks.common
-from benchmarks.common import MULTIVIEW, export_src, timed_child
+from benchmarks.common import MULTIVIEW, earlier_cli, export_src, timed_child
 from whole_process import _byte_compile, _geofill  # this folder is on sys.path when run as a script
 
 DEFAULT_SETS = (
@@ -59,8 +59,7 @@ def _commands(set_dir: Path, folder: Path, overrides: list[str], before: str | N
         "all": ([_geofill(), "fill", *io, *every, "-o", str(folder / "a.png"), "-q", *sets], None),
     }
     if before is not None:
-        launch = "import sys; from geofill import cli; sys.exit((getattr(cli, 'run', None) or cli.main)())"
-        cmd = [sys.executable, "-c", launch, "fill", *io, *every, "-o", str(folder / "b.png"), "-q"]
+        cmd = earlier_cli("fill", *io, *every, "-o", str(folder / "b.png"), "-q")
         cmds["before all"] = (cmd, {**os.environ, "PYTHONPATH": before})
     return cmds
 

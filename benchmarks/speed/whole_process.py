@@ -41,7 +41,7 @@ import urllib.request
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root: benchmarks.common
-from benchmarks.common import PAIRS, export_src, timed_child
+from benchmarks.common import PAIRS, earlier_cli, export_src, timed_child
 
 HERE = Path(__file__).resolve().parent
 BERLIN = "dev_opensfm_berlin_01_02"
@@ -107,11 +107,7 @@ def _paired(folder: Path, runs: int, overrides: list[str], before: str | None) -
     }
     envs: dict[str, dict[str, str] | None] = {name: None for name in cmds}
     if before is not None:
-        # The earlier tree's command as its console script runs it (run() of its geofill.cli, or
-        # main() where there was no run() yet), with its own defaults: it need not know today's
-        # config keys.
-        launch = "import sys; from geofill import cli; sys.exit((getattr(cli, 'run', None) or cli.main)())"
-        cmds["before"] = [sys.executable, "-c", launch, "fill", *io, "-o", str(folder / "p.png"), "--quiet"]
+        cmds["before"] = earlier_cli("fill", *io, "-o", str(folder / "p.png"), "--quiet")
         envs["before"] = {**os.environ, "PYTHONPATH": before}
     for name, cmd in cmds.items():
         timed_child(cmd, envs[name])  # warm-up
