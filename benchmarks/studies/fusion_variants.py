@@ -10,7 +10,8 @@ the removal protocols).
 PSNR, and the renders chosen knowing the truth per pixel and per 24-px box (the box's mean error).
 
 A variant is comma-separated ``--set`` items (empty: the defaults); the screen stage runs per
-variant (with its settings), the stages before it once with the defaults. ``--cache`` keeps the
+variant (with its settings), the stages before it once with the defaults or the ``--render-set``
+items (which every variant then includes). ``--cache`` keeps the
 renders (pickles) between runs. Prints one line per variant: mean hole PSNR, mean leak, median fuse
 time, then each set's figures.
 """
@@ -21,6 +22,7 @@ import argparse
 import pickle
 import sys
 import time
+from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
 
@@ -51,18 +53,22 @@ def _cases(pairs: list[str], protocol: str, seed: int):
         yield pair.id, case.pair, case.pair.target, case.hole, case.truth, case.objects
 
 
-def _renders(pairs: list[str], protocol: str, cache: Path | None, seed: int = 0) -> list[tuple]:
+def _renders(
+    pairs: list[str], protocol: str, cache: Path | None, seed: int = 0, settings: Sequence[str] = ()
+) -> list[tuple]:
     """Per set: (id, context, references up to the refine stage, hole, truth, objects), the
-    references through the same stages as :func:`geofill.pipeline.fill` runs them."""
-    from geofill.config import FillConfig
+    references through the same stages as :func:`geofill.pipeline.fill` runs them, under the
+    ``settings`` (``key=value`` items; the defaults where empty)."""
+    from geofill.config import FillConfig, parse_overrides
     from geofill.io import as_rgb_uint8
     from geofill.pipeline import ReferenceArtifacts, prepare_fill, run_all_references
     from geofill.progress import Progress
 
-    cfg = FillConfig()
+    cfg = FillConfig().updated(parse_overrides(list(settings))) if settings else FillConfig()
+    tag = "".join(f"_{item}" for item in settings)
     out = []
     for set_id, pair, shown, hole, truth, objects in _cases(pairs, protocol, seed):
-        path = cache / f"{protocol}_{seed}_{set_id}.pkl" if cache else None
+        path = cache / f"{protocol}_{seed}{tag}_{set_id}.pkl" if cache else None
         if path is not None and path.is_file():
             ctx, refs = pickle.loads(path.read_bytes())
             ctx = replace(ctx, inpainter=prepare_fill(shown, hole, pair.sources, cfg).inpainter)
@@ -96,6 +102,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--pairs", action="append", default=None, help=f"as geofill eval's (default {MULTIVIEW})")
     ap.add_argument("--seed", type=int, default=0, help="mask and protocol seed, as geofill eval's")
     ap.add_argument("--variant", action="append", default=None, help="comma-separated key=value (repeatable)")
+    ap.add_argument(
+        "--render-set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="a setting for the stages before the screen (repeatable; e.g. registration.joint=auto)",
+    )
     ap.add_argument("--cache", type=Path, help="folder keeping the renders between runs")
     ap.add_argument("--oracle", action="store_true", help="also the choices made knowing the truth")
     args = ap.parse_args(argv)
@@ -105,9 +118,9 @@ def main(argv: list[str] | None = None) -> int:
     from geofill.fuse import fuse_references
     from geofill.pipeline import composite
 
-    sets = _renders(args.pairs or [str(MULTIVIEW)], args.protocol, args.cache, args.seed)
+    sets = _renders(args.pairs or [str(MULTIVIEW)], args.protocol, args.cache, args.seed, args.render_set)
     for variant in args.variant or [""]:
-        items = [v for v in variant.split(",") if v]
+        items = args.render_set + [v for v in variant.split(",") if v]
         cfg = FillConfig().updated(parse_overrides(items)) if items else FillConfig()
         scores, leaks, times, cells = [], [], [], []
         for set_id, ctx, refs, hole, truth, objects in sets:
