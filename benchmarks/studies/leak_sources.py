@@ -1,0 +1,111 @@
+"""Where the strangers protocol's leak comes from: each leaked hole pixel of the all-reference fill
+(``geofill eval --protocol strangers --references all``, same renders as
+:mod:`fusion_variants`) put in one class, as a share of the hole's distinguishable pixels (the
+leak's denominator, so the classes add up to the leak):
+
+- ``all``: every render covering it (as refined, before the screen) shows a stranger there; of
+  those, ``lone``: exactly one render covers it (nothing else sees that place);
+- ``chosen``: a render that does not show a stranger covered it after the screen, and the fuse
+  stage chose one that does; split by how many screened renders covered it and how many of them
+  show a stranger (``c2s1``: two covering, one a stranger);
+- ``other``: the rest (painted, or a blend across a seam).
+
+A render pixel "shows a stranger" by the leak's own rule (nearer to a stranger than half its
+distance to the truth, where the stranger is distinguishable).
+
+    .venv/bin/python benchmarks/studies/leak_sources.py --seed 0 --seed 1 [--cache DIR]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root: benchmarks.common
+from benchmarks.common import MULTIVIEW
+from benchmarks.studies.fusion_variants import _renders, screened
+
+
+def shows_object(image: np.ndarray, truth: np.ndarray, objects, region: np.ndarray) -> tuple:
+    """(HxW bool where ``image`` reproduces one of ``objects`` by the leak's rule, HxW bool where one
+    is distinguishable from the truth), both within ``region``."""
+    from geofill.evaluation.metrics import LEAK_MIN_CONTRAST, LEAK_RATIO
+
+    img, tru = image.astype(np.float32), truth.astype(np.float32)
+    d_true = np.linalg.norm(img - tru, axis=2)
+    leaked = np.zeros(region.shape, bool)
+    distinguishable = np.zeros(region.shape, bool)
+    for obj, mask in objects:
+        o = obj.astype(np.float32)
+        there = mask & (np.linalg.norm(o - tru, axis=2) > LEAK_MIN_CONTRAST)
+        distinguishable |= there
+        leaked |= there & (np.linalg.norm(img - o, axis=2) < LEAK_RATIO * d_true)
+    return leaked & region, distinguishable & region
+
+
+def classify(ctx, refs, hole, truth, objects) -> Counter:
+    """Counts of distinguishable pixels per class (see the module docstring), and ``n``."""
+    from geofill.fuse import fuse_references
+    from geofill.pipeline import composite
+
+    refs = [r for r in screened(ctx, refs, ctx.cfg) if r.usable]
+    fusion = fuse_references(ctx.target, hole, refs, ctx.cfg)
+    output = np.where(hole[..., None], composite(ctx, fusion), truth)
+    leaked, distinguishable = shows_object(output, truth, objects, hole)
+    cover = np.zeros(hole.shape, int)
+    strangers = np.zeros(hole.shape, int)
+    s_cover = np.zeros(hole.shape, int)
+    s_strangers = np.zeros(hole.shape, int)
+    chose_stranger = np.zeros(hole.shape, bool)
+    for r in refs:
+        a = r.refined.alpha & hole
+        cover += a
+        strangers += shows_object(r.refined.image, truth, objects, a)[0]
+        sa = r.screened.alpha & hole
+        s = shows_object(r.screened.image, truth, objects, sa)[0]
+        s_cover += sa
+        s_strangers += s
+        chose_stranger |= (fusion.labels == r.index) & s
+    out = Counter(n=int(distinguishable.sum()), leak=int(leaked.sum()))
+    every = leaked & (cover >= 1) & (strangers == cover)
+    out["all"] = int(every.sum())
+    out["lone"] = int((every & (cover == 1)).sum())
+    chosen = leaked & ~every & chose_stranger & (s_strangers < s_cover)
+    out["chosen"] = int(chosen.sum())
+    for c in range(2, 5):
+        for s in range(1, c):
+            out[f"c{c}s{s}"] = int((chosen & (s_cover == c) & (s_strangers == s)).sum())
+    out["other"] = out["leak"] - out["all"] - out["chosen"]
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seed", type=int, action="append", default=None, help="protocol seed (repeatable)")
+    ap.add_argument("--pairs", action="append", default=None, help=f"as geofill eval's (default {MULTIVIEW})")
+    ap.add_argument("--cache", type=Path, help="folder keeping the renders between runs")
+    args = ap.parse_args(argv)
+    keys = ["leak", "all", "lone", "chosen", "c2s1", "c3s1", "c3s2", "c4s1", "c4s2", "c4s3", "other"]
+    print("| seed | set | " + " | ".join(keys) + " |")
+    print("|" + " --- |" * (len(keys) + 2))
+    rows = []
+    for seed in args.seed or [0]:
+        for set_id, ctx, refs, hole, truth, objects in _renders(
+            args.pairs or [str(MULTIVIEW)], "strangers", args.cache, seed
+        ):
+            c = classify(ctx, refs, hole, truth, objects)
+            row = [c[k] / max(c["n"], 1) for k in keys]
+            rows.append(row)
+            cells = " | ".join(f"{v:.3f}" for v in row)
+            print(f"| {seed} | {set_id.removeprefix('dev_mv_')} | {cells} |", flush=True)
+    mean = " | ".join(f"**{v:.3f}**" for v in np.mean(rows, axis=0))
+    print(f"| | **mean** | {mean} |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
