@@ -820,7 +820,7 @@ class RegistrationConfig:
         "it places whose own matches agree (``min_agreement``); the others keep the per-pair ones. "
         "off: per-pair registration only (the default: on DEV-MV with all references, mask seeds 0-2, "
         "auto raises restoration 21.89 -> 22.63 dB and strangers 17.83 -> 17.90 dB, but the static "
-        "object's removal, seed 0, falls 20.21 -> 19.53 dB; see docs/architecture.md).",
+        "object's removal falls 19.93 -> 19.45 dB; see docs/architecture.md).",
     )
     min_agreement: Annotated[float, Range(0, 1)] = setting(
         0.6,
@@ -836,8 +836,9 @@ class RegistrationConfig:
     max_side: Annotated[int, Range(0, 16384)] = setting(
         800,
         "Long side (px) of the images COLMAP sees, at most the working size (0: the working size). "
-        "DEV-MV restoration, seeds 0-2, all references: 640 px 22.09 dB, 800 22.63, 960 22.49, 1280 "
-        "22.41; COLMAP's feature extraction, most of the stage's time, scales with the pixels.",
+        "DEV-MV restoration, seeds 0-2, all references, ``multiview.joint_scale`` off: 640 px 22.09 dB, "
+        "800 22.63, 960 22.49, 1280 22.41; COLMAP's feature extraction, most of the stage's time, "
+        "scales with the pixels.",
     )
     optimize_joint: bool = setting(
         False,
