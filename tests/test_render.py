@@ -220,3 +220,29 @@ def test_numba_starts_on_first_use_or_in_the_background():
     r = render_mesh(depth, K, K, make_pose(np.eye(3), [0.1, 0.0, 0.0]), 0.04)
     assert r.alpha.any()
     assert type(render_module._raster_triangle).__name__ == "CPUDispatcher"  # replaced on first use
+
+
+def test_a_cut_object_reveals_the_background_it_hid_from_the_target():
+    """A box (depth 5) in front of a wall (depth 20): rendered into a target 0.5 units to the side,
+    the box hides wall pixels the source sees. Left out of the mesh, the box no longer hides them."""
+    from geofill.config import RenderConfig
+    from geofill.optimize.stage import Geometry
+    from geofill.render import render_reference
+
+    depth = np.full((120, 160), 20.0, np.float32)
+    depth[40:80, 60:100] = 5.0
+    T = make_pose(np.eye(3), [0.5, 0.0, 0.0])  # box moves 30 px right, wall 7.5 px
+    geometry = Geometry(T, K, K, depth)
+    source = np.random.default_rng(0).integers(0, 256, (120, 160, 3), dtype=np.uint8)
+    hole = np.zeros((120, 160), bool)
+    hole[40:80, 90:130] = True  # the box's place in the target
+    box = np.zeros((120, 160), bool)
+    box[40:80, 60:100] = True
+    kept = render_reference(geometry, source, hole, RenderConfig(), 0.0).render
+    cut = render_reference(geometry, source, hole, RenderConfig(), 0.0, box).render
+    assert np.abs(kept.depth[50:70, 95:125] - 5.0).max() < 1e-4  # the box's own surface
+    # Target x >= 107.5 sees the wall at source x >= 100, right of the box, visible in the source.
+    assert np.abs(cut.depth[50:70, 110:128] - 20.0).max() < 1e-4
+    assert np.abs(cut.map_x[60, 110:128] - (np.arange(110, 128) - 7.5)).max() < 1e-4
+    # Left of it the wall lies behind the box in the source too: nothing to show.
+    assert not cut.alpha[50:70, 92:104].any()

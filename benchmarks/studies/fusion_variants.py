@@ -83,7 +83,9 @@ def _renders(
             print(f"{set_id}: renders in {time.perf_counter() - t0:.1f} s", file=sys.stderr)
             if path is not None:
                 path.parent.mkdir(parents=True, exist_ok=True)
-                path.write_bytes(pickle.dumps((replace(ctx, inpainter=None), refs)))
+                part = path.with_suffix(".part")  # renamed when whole: a full disk leaves no torn pickle
+                part.write_bytes(pickle.dumps((replace(ctx, inpainter=None), refs)))
+                part.replace(path)
         out.append((set_id, ctx, refs, hole, truth, objects))
     return out
 

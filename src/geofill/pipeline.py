@@ -51,7 +51,7 @@ from .prepare import WorkingViews, prepare_views
 from .progress import Progress
 from .refine import RefinedRender, refine_render
 from .render import ReferenceRender, render_reference
-from .screen import ScreenedRender, screen_render, shows_object
+from .screen import ScreenedRender, locate_object, screen_render, shows_object
 from .triangulate import TriangulatedPoints, triangulate
 from .utils.jit import warm_up
 from .utils.resolution import config_px
@@ -297,6 +297,20 @@ def prepare_fill(
     return FillContext(target, hole, shown, target_exif, choice, get_inpainter(cfg.inpaint, say), cfg)
 
 
+def render_step(ctx: FillContext, a: ReferenceArtifacts) -> ReferenceRender:
+    """The render stage: with ``screen.cut_object`` and a hole that shows the object to remove, the
+    object is located in the reference first and left out of its mesh, so that background the
+    reference sees behind it reaches the hole; the screen stage reuses the location."""
+    cfg = ctx.cfg
+    located = None
+    if ctx.shown is not None and cfg.screen.cut_object:
+        located = locate_object(ctx.shown, a.source, a.views, a.matches, a.focal, a.pose, cfg)
+    rendered = render_reference(
+        a.geometry, a.source, ctx.hole, cfg.render, render_margin_px(cfg), located[0] if located else None
+    )
+    return replace(rendered, located=located)
+
+
 def run_reference(
     ctx: FillContext,
     ref: ReferenceArtifacts,
@@ -320,9 +334,9 @@ def run_reference(
         "triangulate": lambda a: triangulate_inliers(a.matches, a.pose, a.focal, cfg),
         "depth": lambda a: source_depth(a.views, a.focal, a.pose, a.points, ctx.depth_choice, a.source.shape, cfg),
         "optimize": lambda a: optimize_geometry(a.views, a.focal, a.pose, a.depth, a.matches, optimize_config(a, cfg)),
-        "render": lambda a: render_reference(a.geometry, a.source, ctx.hole, cfg.render, render_margin_px(cfg)),
+        "render": lambda a: render_step(ctx, a),
         "refine": lambda a: refine_render(ctx.target, ctx.hole, a.source, a.render.render, cfg.refine),
-        "screen": lambda a: screen_render(a.refined, ctx.target, ctx.hole, a.source, ctx.shown, a.exclude, a.views, a.matches, a.focal, a.pose, cfg),
+        "screen": lambda a: screen_render(a.refined, ctx.target, ctx.hole, a.source, ctx.shown, a.exclude, a.views, a.matches, a.focal, a.pose, cfg, a.render.located),
     }  # fmt: skip
     for i, (stage, name) in enumerate(REFERENCE_STAGES):
         if a.dropped:

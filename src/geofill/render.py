@@ -88,6 +88,9 @@ class ReferenceRender:
     render: RenderResult
     source: np.ndarray
     hole_coverage: float
+    #: The removed object as located in the source before rendering (HxW bool at the source's size,
+    #: or None where not found) and the matches that located it; None when it was not looked for.
+    located: tuple[np.ndarray | None, int] | None = None
 
     @property
     def warped(self) -> np.ndarray:
@@ -96,7 +99,10 @@ class ReferenceRender:
         return self.render.sample(self.source)
 
     def summary(self) -> str:
-        return f"source covers {100 * self.hole_coverage:.1f}% of the hole"
+        cut = ""
+        if self.located is not None and self.located[0] is not None:
+            cut = f" (the removed object, {int(self.located[0].sum())} source px, left out of its mesh)"
+        return f"source covers {100 * self.hole_coverage:.1f}% of the hole{cut}"
 
     def report(self) -> dict[str, Any]:
         return {"hole_coverage": self.hole_coverage, "roi": list(self.render.roi or ())}
@@ -361,9 +367,12 @@ def render_reference(
     hole: np.ndarray,
     cfg: RenderConfig,
     margin_px: float,
+    cut: np.ndarray | None = None,
 ) -> ReferenceRender:
     """Render ``source`` (HxWx3 uint8) with ``geometry`` into the target view at the size of
     ``hole`` (the target's), over the hole's bounding box grown by ``margin_px`` (config px).
+    ``cut`` (HxW bool at the source's size, or None): source pixels left out of the mesh, so that
+    what lies behind them from the target's view is not hidden by them.
     A reference that covers less than ``cfg.min_hole_coverage`` of the hole cannot help."""
     H, W = hole.shape
     K_t = geometry.K_target.resized(W, H)
@@ -371,6 +380,10 @@ def render_reference(
     depth_s = geometry.depth
     if depth_s.shape != (K_s.height, K_s.width):
         depth_s = cv2.resize(depth_s, (K_s.width, K_s.height), interpolation=cv2.INTER_LINEAR)
+    if cut is not None and cut.any():
+        if cut.shape != depth_s.shape:
+            cut = cv2.resize(cut.astype(np.uint8), depth_s.shape[::-1], interpolation=cv2.INTER_NEAREST) > 0
+        depth_s = np.where(cut, np.float32(np.nan), depth_s)
     roi = render_roi(hole, int(config_px(margin_px, hole.shape)))
     rendered = render_mesh(depth_s, K_s, K_t, geometry.T, cfg.edge_threshold, roi)
     rows, cols = rendered.window()  # nothing is rendered outside it
