@@ -246,3 +246,21 @@ def test_a_cut_object_reveals_the_background_it_hid_from_the_target():
     assert np.abs(cut.map_x[60, 110:128] - (np.arange(110, 128) - 7.5)).max() < 1e-4
     # Left of it the wall lies behind the box in the source too: nothing to show.
     assert not cut.alpha[50:70, 92:104].any()
+
+
+def test_the_object_is_cut_from_the_mesh_with_several_references_by_default():
+    """The hole shows what the reference shows there (the object to remove): by default a single
+    reference is rendered whole; with "always" the object is located first and left out of the mesh,
+    and the screen still counts what it would have shown as refused."""
+    from geofill.config import FillConfig
+    from geofill.pipeline import fill
+
+    sp = make_pair(seed=0, width=200, height=150)
+    whole = fill(sp.target, sp.hole, sp.source)
+    cut = fill(sp.target, sp.hole, sp.source, FillConfig().updated({"screen.cut_object": "always"}))
+    assert whole.references[0].render.located is None
+    mask, matches = cut.references[0].render.located
+    assert mask is not None and mask.any() and matches > 0
+    seen = cut.references[0].render.object_seen
+    assert seen.sum() > 0.5 * sp.hole.sum()  # most of the hole would have shown the object
+    assert cut.report.refused_fraction["removed_object"] > 0.5

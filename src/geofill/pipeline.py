@@ -51,7 +51,7 @@ from .prepare import WorkingViews, prepare_views
 from .progress import Progress
 from .refine import RefinedRender, refine_render
 from .render import ReferenceRender, render_reference
-from .screen import ScreenedRender, locate_object, screen_render, shows_object
+from .screen import ScreenedRender, locate_object, object_in_render, screen_render, shows_object
 from .triangulate import TriangulatedPoints, triangulate
 from .utils.jit import warm_up
 from .utils.resolution import config_px
@@ -100,6 +100,7 @@ class FillContext:
     depth_choice: BackendChoice
     inpainter: Inpainter
     cfg: FillConfig
+    n_references: int = 1
 
 
 @dataclass(frozen=True)
@@ -294,21 +295,31 @@ def prepare_fill(
     choice = choose_backend(cfg.depth, say)
     if detail is not None:
         detail(f"depth backend: {choice.reason}")
-    return FillContext(target, hole, shown, target_exif, choice, get_inpainter(cfg.inpaint, say), cfg)
+    return FillContext(
+        target, hole, shown, target_exif, choice, get_inpainter(cfg.inpaint, say), cfg, len(sources)
+    )
 
 
 def render_step(ctx: FillContext, a: ReferenceArtifacts) -> ReferenceRender:
-    """The render stage: with ``screen.cut_object`` and a hole that shows the object to remove, the
-    object is located in the reference first and left out of its mesh, so that background the
-    reference sees behind it reaches the hole; the screen stage reuses the location."""
+    """The render stage: with ``screen.cut_object`` (and several references, for "several") and a
+    hole that shows the object to remove, the object is located in the reference and the reference
+    rendered again without it, so that
+    background the reference sees behind it reaches the hole (the first render decides whether the
+    reference sees the hole at all, and where it would have shown the object); the screen stage
+    reuses the location."""
     cfg = ctx.cfg
-    located = None
-    if ctx.shown is not None and cfg.screen.cut_object:
-        located = locate_object(ctx.shown, a.source, a.views, a.matches, a.focal, a.pose, cfg)
-    rendered = render_reference(
-        a.geometry, a.source, ctx.hole, cfg.render, render_margin_px(cfg), located[0] if located else None
+    margin = render_margin_px(cfg)
+    rendered = render_reference(a.geometry, a.source, ctx.hole, cfg.render, margin)
+    cut = cfg.screen.cut_object
+    if ctx.shown is None or cut == "off" or (cut == "several" and ctx.n_references < 2):
+        return rendered
+    located = locate_object(ctx.shown, a.source, a.views, a.matches, a.focal, a.pose, cfg)
+    if located[0] is None or not located[0].any():
+        return replace(rendered, located=located)
+    opened = render_reference(a.geometry, a.source, ctx.hole, cfg.render, margin, located[0], check=False)
+    return replace(
+        opened, located=located, object_seen=object_in_render(located[0], rendered.render, ctx.hole)
     )
-    return replace(rendered, located=located)
 
 
 def run_reference(
@@ -336,7 +347,7 @@ def run_reference(
         "optimize": lambda a: optimize_geometry(a.views, a.focal, a.pose, a.depth, a.matches, optimize_config(a, cfg)),
         "render": lambda a: render_step(ctx, a),
         "refine": lambda a: refine_render(ctx.target, ctx.hole, a.source, a.render.render, cfg.refine),
-        "screen": lambda a: screen_render(a.refined, ctx.target, ctx.hole, a.source, ctx.shown, a.exclude, a.views, a.matches, a.focal, a.pose, cfg, a.render.located),
+        "screen": lambda a: screen_render(a.refined, ctx.target, ctx.hole, a.source, ctx.shown, a.exclude, a.views, a.matches, a.focal, a.pose, cfg, a.render.located, a.render.object_seen),
     }  # fmt: skip
     for i, (stage, name) in enumerate(REFERENCE_STAGES):
         if a.dropped:

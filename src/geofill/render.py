@@ -91,6 +91,8 @@ class ReferenceRender:
     #: The removed object as located in the source before rendering (HxW bool at the source's size,
     #: or None where not found) and the matches that located it; None when it was not looked for.
     located: tuple[np.ndarray | None, int] | None = None
+    #: Where the object left out of the mesh would have shown in the target's hole (HxW bool), or None.
+    object_seen: np.ndarray | None = None
 
     @property
     def warped(self) -> np.ndarray:
@@ -368,12 +370,14 @@ def render_reference(
     cfg: RenderConfig,
     margin_px: float,
     cut: np.ndarray | None = None,
+    check: bool = True,
 ) -> ReferenceRender:
     """Render ``source`` (HxWx3 uint8) with ``geometry`` into the target view at the size of
     ``hole`` (the target's), over the hole's bounding box grown by ``margin_px`` (config px).
     ``cut`` (HxW bool at the source's size, or None): source pixels left out of the mesh, so that
     what lies behind them from the target's view is not hidden by them.
-    A reference that covers less than ``cfg.min_hole_coverage`` of the hole cannot help."""
+    A reference that covers less than ``cfg.min_hole_coverage`` of the hole cannot help (``check``
+    False: not tested)."""
     H, W = hole.shape
     K_t = geometry.K_target.resized(W, H)
     K_s = geometry.K_source.resized(source.shape[1], source.shape[0])
@@ -388,7 +392,7 @@ def render_reference(
     rendered = render_mesh(depth_s, K_s, K_t, geometry.T, cfg.edge_threshold, roi)
     rows, cols = rendered.window()  # nothing is rendered outside it
     coverage = np.count_nonzero(rendered.alpha[rows, cols] & hole[rows, cols]) / np.count_nonzero(hole)
-    if coverage < cfg.min_hole_coverage:
+    if check and coverage < cfg.min_hole_coverage:
         raise ReferenceUnusable(
             f"it covers only {100 * coverage:.1f}% of the hole "
             f"(< {100 * cfg.min_hole_coverage:.0f}%): it does not see what the hole hides"

@@ -121,13 +121,16 @@ def screen_render(
     pose: PoseEstimate,
     cfg: FillConfig,
     located: tuple[np.ndarray | None, int] | None = None,
+    object_seen: np.ndarray | None = None,
 ) -> ScreenedRender:
     """Take out of ``refined`` what shows the removed object again, what comes from reference pixels
     the user masked and what continues a stranger. ``target``: the target with its hole blanked
     (HxWx3 uint8); ``shown``: the target as the user gave it when its hole shows something to
     remove, else None; ``exclude``: the reference's own mask (HxW bool at the source's input size,
     True = never copy) or None; ``source``: the reference at input size; ``located``:
-    :func:`locate_object`'s result when the render stage already looked for the object."""
+    :func:`locate_object`'s result when the render stage already looked for the object, and
+    ``object_seen`` where it left the object out of the mesh and the object would have shown (counted
+    as refused where nothing else covers it)."""
     sc = cfg.screen
     n_hole = int(np.count_nonzero(hole))
     rows, cols = refined.render.window()
@@ -144,6 +147,8 @@ def screen_render(
         refused_object = np.zeros(hole.shape, bool)
         if located:
             refused_object[rows, cols] = _sampled(in_source, field, rows, cols) & covered
+        if object_seen is not None:
+            refused_object |= object_seen & hole & ~refined.alpha
         if sc.appearance_threshold > 0:
             seen = seen_again(
                 refined.image[rows, cols], shown[rows, cols], hole[rows, cols], covered, hole.shape, sc
@@ -468,6 +473,14 @@ def _two_way_seeds(
                 s, o = (i, j) if ev_i else (j, i)
                 if float(trust[o][part].mean()) >= ratio * float(trust[s][part].mean()):
                     seeds[s] |= part
+
+
+def object_in_render(mask: np.ndarray, field: RenderResult, hole: np.ndarray) -> np.ndarray:
+    """HxW bool: the hole pixels where the render ``field`` shows the source pixels of ``mask``."""
+    out = np.zeros(hole.shape, bool)
+    rows, cols = field.window()
+    out[rows, cols] = _sampled(mask, field, rows, cols) & field.alpha[rows, cols] & hole[rows, cols]
+    return out
 
 
 def _sampled(mask: np.ndarray, field: RenderResult, rows: slice, cols: slice) -> np.ndarray:
