@@ -301,12 +301,11 @@ def prepare_fill(
 
 
 def render_step(ctx: FillContext, a: ReferenceArtifacts) -> ReferenceRender:
-    """The render stage: with ``screen.cut_object`` (and several references, for "several") and a
+    """The render stage. With ``screen.cut_object`` (and several references, for "several") and a
     hole that shows the object to remove, the object is located in the reference and the reference
-    rendered again without it, so that
-    background the reference sees behind it reaches the hole (the first render decides whether the
-    reference sees the hole at all, and where it would have shown the object); the screen stage
-    reuses the location."""
+    rendered again without it, so that background it sees behind the object reaches the hole; the
+    first render decides whether the reference sees the hole at all and where it would have shown
+    the object. The screen stage reuses the location."""
     cfg = ctx.cfg
     margin = render_margin_px(cfg)
     rendered = render_reference(a.geometry, a.source, ctx.hole, cfg.render, margin)
