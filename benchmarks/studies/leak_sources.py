@@ -30,32 +30,16 @@ from benchmarks.common import MULTIVIEW
 from benchmarks.studies.fusion_variants import _renders, screened
 
 
-def shows_object(image: np.ndarray, truth: np.ndarray, objects, region: np.ndarray) -> tuple:
-    """(HxW bool where ``image`` reproduces one of ``objects`` by the leak's rule, HxW bool where one
-    is distinguishable from the truth), both within ``region``."""
-    from geofill.evaluation.metrics import LEAK_MIN_CONTRAST, LEAK_RATIO
-
-    img, tru = image.astype(np.float32), truth.astype(np.float32)
-    d_true = np.linalg.norm(img - tru, axis=2)
-    leaked = np.zeros(region.shape, bool)
-    distinguishable = np.zeros(region.shape, bool)
-    for obj, mask in objects:
-        o = obj.astype(np.float32)
-        there = mask & (np.linalg.norm(o - tru, axis=2) > LEAK_MIN_CONTRAST)
-        distinguishable |= there
-        leaked |= there & (np.linalg.norm(img - o, axis=2) < LEAK_RATIO * d_true)
-    return leaked & region, distinguishable & region
-
-
 def classify(ctx, refs, hole, truth, objects) -> Counter:
     """Counts of distinguishable pixels per class (see the module docstring), and ``n``."""
+    from geofill.evaluation.metrics import leak_masks
     from geofill.fuse import fuse_references
     from geofill.pipeline import composite
 
     refs = [r for r in screened(ctx, refs, ctx.cfg) if r.usable]
     fusion = fuse_references(ctx.target, hole, refs, ctx.cfg)
     output = np.where(hole[..., None], composite(ctx, fusion), truth)
-    leaked, distinguishable = shows_object(output, truth, objects, hole)
+    leaked, distinguishable = leak_masks(output, truth, objects, hole)
     cover = np.zeros(hole.shape, int)
     strangers = np.zeros(hole.shape, int)
     s_cover = np.zeros(hole.shape, int)
@@ -64,9 +48,9 @@ def classify(ctx, refs, hole, truth, objects) -> Counter:
     for r in refs:
         a = r.refined.alpha & hole
         cover += a
-        strangers += shows_object(r.refined.image, truth, objects, a)[0]
+        strangers += leak_masks(r.refined.image, truth, objects, a)[0]
         sa = r.screened.alpha & hole
-        s = shows_object(r.screened.image, truth, objects, sa)[0]
+        s = leak_masks(r.screened.image, truth, objects, sa)[0]
         s_cover += sa
         s_strangers += s
         chose_stranger |= (fusion.labels == r.index) & s

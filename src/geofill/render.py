@@ -102,7 +102,7 @@ class ReferenceRender:
 
     def summary(self) -> str:
         cut = ""
-        if self.object_seen is not None and self.located is not None and self.located[0] is not None:
+        if self.object_seen is not None:  # set only where the located object was left out
             cut = f" (the removed object, {int(self.located[0].sum())} source px, left out of its mesh)"
         return f"source covers {100 * self.hole_coverage:.1f}% of the hole{cut}"
 

@@ -148,7 +148,7 @@ def screen_render(
         if located:
             refused_object[rows, cols] = _sampled(in_source, field, rows, cols) & covered
         if object_seen is not None:
-            refused_object |= object_seen & hole & ~refined.alpha
+            refused_object |= object_seen & ~refined.alpha
         if sc.appearance_threshold > 0:
             seen = seen_again(
                 refined.image[rows, cols], shown[rows, cols], hole[rows, cols], covered, hole.shape, sc

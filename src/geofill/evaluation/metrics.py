@@ -195,6 +195,30 @@ class Leak:
     distinguishable: int
 
 
+def leak_masks(
+    output: np.ndarray,
+    truth: np.ndarray,
+    objects: Sequence[tuple[np.ndarray, np.ndarray]],
+    region: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """HxW bool (leaked, distinguishable): the pixels of ``region`` where ``output`` reproduces one
+    of ``objects`` and where one is distinguishable from ``truth``, by :func:`leak`'s rule."""
+    _check(output, truth, region)
+    out, tru = output[region], truth[region]
+    d_true = _rgb_distance(out, tru)
+    distinguishable = np.zeros(len(out), bool)
+    leaked = np.zeros(len(out), bool)
+    for image, mask in objects:
+        _check(image, truth, None)
+        obj = image[region]
+        there = mask[region] & (_rgb_distance(obj, tru) > LEAK_MIN_CONTRAST)
+        distinguishable |= there
+        leaked |= there & (_rgb_distance(out, obj) < LEAK_RATIO * d_true)
+    full_leaked, full_distinguishable = np.zeros(region.shape, bool), np.zeros(region.shape, bool)
+    full_leaked[region], full_distinguishable[region] = leaked, distinguishable
+    return full_leaked, full_distinguishable
+
+
 def _rgb_distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.linalg.norm(a.astype(np.float32) - b.astype(np.float32), axis=-1)
 
@@ -220,16 +244,6 @@ def leak(
     >>> leak(out, truth, [(obj, np.ones((1, 4), bool))], np.ones((1, 4), bool))
     Leak(fraction=0.5, leaked=2, distinguishable=4)
     """
-    _check(output, truth, region)
-    out, tru = output[region], truth[region]
-    d_true = _rgb_distance(out, tru)
-    distinguishable = np.zeros(len(out), bool)
-    leaked = np.zeros(len(out), bool)
-    for image, mask in objects:
-        _check(image, truth, None)
-        obj = image[region]
-        there = mask[region] & (_rgb_distance(obj, tru) > LEAK_MIN_CONTRAST)
-        distinguishable |= there
-        leaked |= there & (_rgb_distance(out, obj) < LEAK_RATIO * d_true)
+    leaked, distinguishable = leak_masks(output, truth, objects, region)
     n = int(distinguishable.sum())
     return Leak(float(leaked.sum()) / n if n else None, int(leaked.sum()), n)
