@@ -28,7 +28,6 @@ from .match import Matches
 from .pose import PoseEstimate, normalise, parallax_deg
 from .utils.resolution import resize_long, resize_mask_any
 
-
 #: Long side (px, as COLMAP sees the images) under which its SIFT starts from the upsampled octave.
 UPSAMPLE_BELOW_PX = 640
 
