@@ -76,9 +76,9 @@ SECTIONS = [
         "(`benchmarks/quality/multiview_seeds.py`)",
         "The multi-view targets on the mean of seeds 0-2 (one seed's holes can favour either side): all "
         "references minus the best single reference per set and seed, and the sets where all references "
-        "are at least as good; `joint` is the opt-in joint registration (`registration.joint=auto`, the "
-        "`sfm` extra).",
-        [PY, "benchmarks/quality/multiview_seeds.py", "--variant", "joint:registration.joint=auto"],
+        "are at least as good; the default registers them jointly (`registration.joint=auto`, the `sfm` "
+        "extra); `perpair` registers each reference with the target alone (`registration.joint=off`).",
+        [PY, "benchmarks/quality/multiview_seeds.py", "--variant", "perpair:registration.joint=off"],
     ),
     Section(
         "multiview_graphcut",
