@@ -118,13 +118,16 @@ def test_a_fill_on_rendered_views_gets_colmaps_focal_and_pose_right():
     """The joint registration starts from the pairs' focal estimate: started from the default
     prior instead, COLMAP flips these scenes' translation (see the next test)."""
     v, hole = _rendered_views()
-    result = fill(
-        blanked(v.target, hole), hole, v.sources, FillConfig().updated({"registration.joint": "auto"})
-    )
+    result = fill(blanked(v.target, hole), hole, v.sources, FillConfig())  # joint registration by default
     for ref, T in zip(result.references, v.T_source_to_target, strict=True):
         assert ref.focal.method == "joint" and ref.pose.status == "ok"
         assert ref.focal.K_target.fx == pytest.approx(300.0, rel=0.02)
         assert max(pose_errors_deg(ref.pose.T, T)) < 1.0
+    words = result.report.registration
+    assert words.startswith("COLMAP registered reference(s) 1 (") and words.endswith("of 2 with the target")
+    off = fill(blanked(v.target, hole), hole, v.sources, FillConfig().updated({"registration.joint": "off"}))
+    assert all(ref.focal.method != "joint" for ref in off.references)
+    assert off.report.registration == "per pair (registration.joint=off)"
 
 
 def test_a_colmap_model_the_pairs_matches_contradict_is_refused_for_the_per_pair_one(monkeypatch):
@@ -207,18 +210,22 @@ def test_a_joint_focal_that_contradicts_an_exif_prior_is_refused():
     )
 
 
-def test_without_pycolmap_the_stage_line_names_the_extra_and_a_single_reference_never_plans_it(monkeypatch):
+def test_without_pycolmap_the_user_is_told_the_extra_and_a_single_reference_never_plans_it(monkeypatch):
+    """By default (joint registration on), a fill with two references and no pycolmap says, even
+    without --verbose, that they were registered pair by pair and which extra registers them
+    together; report.json says it too. One reference: nothing to say."""
     import geofill.pipeline as pipeline
 
     monkeypatch.setattr(pipeline, "joint_available", lambda: False)
     v = make_views(seed=0, width=320, height=240)
     hole = np.zeros((240, 320), bool)
     hole[90:150, 130:190] = True
-    cfg = FillConfig().updated({"registration.joint": "auto"})
-    lines = {}
+    lines, reports = {}, {}
     for name, sources in (("two", v.sources), ("one", v.sources[:1])):
         out = io.StringIO()
-        fill(blanked(v.target, hole), hole, sources, cfg, progress=Progress(verbose=True, stream=out))
-        lines[name] = [x for x in out.getvalue().splitlines() if "joint registration" in x]
+        res = fill(blanked(v.target, hole), hole, sources, FillConfig(), progress=Progress(stream=out))
+        lines[name] = [x for x in out.getvalue().splitlines() if "pair by pair" in x]
+        reports[name] = res.report.registration
     assert len(lines["two"]) == 1 and 'pip install "geofill[sfm]"' in lines["two"][0]
-    assert lines["one"] == []
+    assert reports["two"].startswith("registered pair by pair") and "sfm" in reports["two"]
+    assert lines["one"] == [] and reports["one"] == ""

@@ -821,7 +821,7 @@ class RegistrationConfig:
         "Without the extra the fill says so in the stage's line and registers per pair. off: per-pair "
         "registration only. DEV-MV, all references, mask seeds 0-2: restoration 21.89 (off) -> 22.63 dB "
         "(auto); static object removal (3 posed sets + 3 rendered) 20.31 -> 20.36 dB, leak 0.029 both; "
-        "strangers (7 sets) 17.39 -> 17.55 dB at seed 0, leak 0.133 -> 0.129 (docs/architecture.md).",
+        "strangers (7 sets) 17.83 -> 17.90 dB, leak 0.126 -> 0.116 (docs/architecture.md).",
     )
     min_agreement: Annotated[float, Range(0, 1)] = setting(
         0.6,

@@ -190,6 +190,8 @@ class FillReport:
     #: With several references: per reference, its scale in the common frame and how much of its
     #: hole footprint got measured (not completed) depth (:mod:`geofill.multiview`).
     multiview: dict[str, Any] = field(default_factory=dict)
+    #: With several references: how their cameras were registered (jointly, or per pair and why).
+    registration: str = ""
     inpaint_method: str = ""
     depth_choice: str = ""
     #: Seconds per stage, summed over the references (which may run at the same time).
@@ -494,7 +496,9 @@ def fill(
         exclude = None if m is None else as_source_mask(m, source, f"mask of source {i + 1}")
         name = source_names[i] if source_names is not None else ""
         refs.append(ReferenceArtifacts(i + 1, source, e, exclude, name=name))
-    refs, multiview = run_all_references(ctx, refs, prog)
+    refs, across = run_all_references(ctx, refs, prog)
+    if not joint_available() and many and cfg.registration.joint == "auto":
+        prog.say(across.registration)
     with prog.stage("fuse") as notes:
         fusion = fuse_references(ctx.target, ctx.hole, [r for r in refs if r.usable], cfg)
         notes.append(fusion.summary())
@@ -502,8 +506,9 @@ def fill(
         image = composite(ctx, fusion)
         notes.append(f"single-image inpainting: {ctx.inpainter.description}")
     report = _report(ctx, refs, fusion, prog)
-    if multiview is not None:
-        report.multiview = multiview.report()
+    report.registration = across.registration
+    if across.multiview is not None:
+        report.multiview = across.multiview.report()
     report.wall_s = prog.wall_s() - started
     if report.status == "single_image":
         prog.say("no reference photo could be used: the whole hole was painted from its surroundings")
@@ -584,7 +589,8 @@ def joint_registration(
     if not joint_available():
         return (
             refs,
-            f"per-pair registration: the joint one needs the 'sfm' extra ({install_hint('pycolmap')})",
+            f"registered pair by pair: registering several references together needs the 'sfm' extra "
+            f"({install_hint('pycolmap')})",
         )
     live = [r for r in refs if r.views is not None]
     if len(live) < 2:
@@ -651,13 +657,22 @@ def multiview_step(
     return [replace(r, geometry=new[r.index]) if r.index in new else r for r in refs], result
 
 
+@dataclass(frozen=True)
+class AcrossReferences:
+    """What the steps across several references did: how the cameras were registered (plain words,
+    "" with one reference or before the pose stage) and the multi-view depth (None where it did not run)."""
+
+    registration: str = ""
+    multiview: MultiViewDepth | None = None
+
+
 def run_all_references(
     ctx: FillContext, refs: list[ReferenceArtifacts], prog: Progress, until: str | None = None
-) -> tuple[list[ReferenceArtifacts], MultiViewDepth | None]:
+) -> tuple[list[ReferenceArtifacts], AcrossReferences]:
     """Every reference through its stages up to ``until`` (all by default) as :func:`fill` runs
     them, with the steps across references where their stage has passed: one focal for a shared
     camera after ``match``, the joint registration after ``pose``, the multi-view depth after
-    ``optimize`` (its result, else None)."""
+    ``optimize``."""
     cfg = ctx.cfg
     names = [s for s, _ in REFERENCE_STAGES]
     last = names.index(until) if until is not None else len(names) - 1
@@ -675,18 +690,21 @@ def run_all_references(
             prog.advance(sum(r.focal is not None for r in refs))  # their focal stage will not run
         else:
             prog.advance(many)
+    registration = ""
+    if many and past("pose"):
+        registration = "per pair (registration.joint=off)"
     if many and cfg.registration.joint == "auto" and past("pose"):
         refs = _run_references(ctx, refs, prog, until="pose")  # the per-pair ones, to compare
         with prog.stage("joint registration") as notes:
-            refs, words = joint_registration(ctx, refs)
-            notes.append(words)
+            refs, registration = joint_registration(ctx, refs)
+            notes.append(registration)
     multiview = None
     if many and cfg.multiview.depth and past("optimize"):
         refs = _run_references(ctx, refs, prog, until="optimize")
         with prog.stage("multi-view depth") as notes:
             refs, multiview = multiview_step(refs, cfg)
             notes.append(multiview.summary())
-    return _run_references(ctx, refs, prog, until=until), multiview
+    return _run_references(ctx, refs, prog, until=until), AcrossReferences(registration, multiview)
 
 
 def _run_references(
