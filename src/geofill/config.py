@@ -820,7 +820,7 @@ class RegistrationConfig:
         "it places whose own matches agree (``min_agreement``); the others keep the per-pair ones. "
         "Without the extra the fill says so in the stage's line and registers per pair. off: per-pair "
         "registration only. DEV-MV, all references, mask seeds 0-2: restoration 21.89 (off) -> 22.63 dB "
-        "(auto); static object removal (3 posed sets + 3 rendered) 20.31 -> 20.36 dB, leak 0.029 both; "
+        "(auto); static object removal (3 posed sets + 3 rendered) 20.31 -> 20.34 dB, leak 0.029 both; "
         "strangers (7 sets) 17.83 -> 17.90 dB, leak 0.126 -> 0.116 (docs/architecture.md).",
     )
     min_agreement: Annotated[float, Range(0, 1)] = setting(
