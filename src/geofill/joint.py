@@ -1,12 +1,13 @@
 """One registration for the target and all references (COLMAP's incremental SfM with bundle
-adjustment, through pycolmap), an optional alternative to the per-pair focal and pose stages.
+adjustment, through pycolmap), run after the per-pair focal and pose stages whenever the ``sfm``
+extra is installed and there are several references (``registration.joint``).
 
 Every image's camera lands in one frame and the intrinsics are refined together over tracks that
 span several views, which per-pair two-view geometry cannot do: on the posed multi-reference sets
 it registers every reference to 0.17-0.72 deg and the focal to 1-1.4 %, where the per-pair stages
 err by up to 20 deg and -44..+16 % (``benchmarks/studies/joint_registration.py``). Where it
 registers nothing (the Kinect living room) or leaves out the target or a reference, that
-reference keeps the per-pair path. Needs the ``sfm`` extra (pycolmap: CPU SfM).
+reference keeps the per-pair path; without the extra every reference does.
 """
 
 from __future__ import annotations
