@@ -9,6 +9,7 @@ A script in ``benchmarks/<group>/`` imports it after putting the repository root
 
 from __future__ import annotations
 
+import argparse
 import os
 import subprocess
 import sys
@@ -21,6 +22,14 @@ ROOT = Path(__file__).resolve().parents[1]
 #: The real pairs and the multi-reference sets, next to the repository.
 PAIRS = ROOT.parent / "shared" / "data" / "pairs"
 MULTIVIEW = ROOT.parent / "shared" / "data" / "multiview"
+#: ``geofill eval --protocol static``'s sets: the multi-reference sets with GT poses, then rendered ones.
+STATIC_PAIRS = [
+    *(
+        str(MULTIVIEW / n)
+        for n in ("dev_mv_instantngp_fox_lower", "dev_mv_instantngp_fox_upper", "dev_mv_slambook_livingroom")
+    ),
+    "synthetic-views:3",
+]
 
 
 def timed_child(cmd: list[str], env: dict[str, str] | None = None) -> tuple[float, float]:
@@ -55,3 +64,40 @@ def export_src(rev: str, folder: Path) -> str:
     short = subprocess.check_output([*git, "rev-parse", "--short", rev], text=True).strip()
     print(f"before: {rev} = {short}")
     return str(folder / "src")
+
+
+def eval_scores(
+    out: Path, args: list[str], fields: tuple[str, ...] = ("psnr_hole",)
+) -> dict[str, dict[str, dict[str, float]]]:
+    """``geofill eval --out out *args`` (its output discarded): per pair and method, the ``fields``
+    of its results.csv that have a value."""
+    import csv
+
+    cmd = [sys.executable, "-m", "geofill.cli", "eval", "--out", str(out), *args]
+    subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
+    scores: dict[str, dict[str, dict[str, float]]] = {}
+    with open(out / "results.csv", newline="") as f:
+        for row in csv.DictReader(f):
+            got = {k: float(row[k]) for k in fields if row.get(k)}
+            if got:
+                scores.setdefault(row["pair"], {})[row["method"]] = got
+    return scores
+
+
+def add_sweep_arguments(ap: argparse.ArgumentParser, variant_help: str) -> None:
+    """``--seeds``, ``--variant NAME:KEY=VALUE[;KEY=VALUE...]`` (repeatable) and ``--keep DIR``, as
+    the scripts that run ``geofill eval`` over several seeds and settings take them."""
+    ap.add_argument("--seeds", default="0,1,2", help="comma-separated seeds (default 0,1,2)")
+    ap.add_argument(
+        "--variant", action="append", default=[], metavar="NAME:KEY=VALUE[;KEY=VALUE...]", help=variant_help
+    )
+    ap.add_argument("--keep", type=Path, help="keep the eval folders here (default: a temporary folder)")
+
+
+def sweep_variants(specs: list[str]) -> list[tuple[str, list[str]]]:
+    """``--variant`` specs as (name, ``KEY=VALUE`` settings)."""
+    out = []
+    for spec in specs:
+        name, _, settings = spec.partition(":")
+        out.append((name, [kv for kv in settings.split(";") if kv]))
+    return out

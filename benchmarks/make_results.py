@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root: benchmarks.common
-from benchmarks.common import MULTIVIEW, PAIRS, ROOT
+from benchmarks.common import MULTIVIEW, PAIRS, ROOT, STATIC_PAIRS
 
 OUT = ROOT / "docs" / "results.md"
 PY = sys.executable
@@ -43,12 +43,11 @@ def _eval(out: str, *extra: str, pairs: Path = PAIRS) -> list[str]:
 
 def _static(methods: str) -> list[str]:
     """``geofill eval --protocol static`` on the sets with GT poses and 3 synthetic view sets."""
-    sets = ["dev_mv_instantngp_fox_lower", "dev_mv_instantngp_fox_upper", "dev_mv_slambook_livingroom"]
-    pairs = [arg for name in sets for arg in ("--pairs", str(MULTIVIEW / name))]
+    pairs = [arg for name in STATIC_PAIRS for arg in ("--pairs", name)]
     return [
         *[PY, "-m", "geofill.cli", "eval", "--protocol", "static", "--references", "all", "--out", "{out}"],
         *pairs,
-        *["--pairs", "synthetic-views:3", "--methods", methods],
+        *["--methods", methods],
     ]
 
 
@@ -120,6 +119,14 @@ SECTIONS = [
             pairs=MULTIVIEW,
         ),
         "summary.md",
+    ),
+    Section(
+        "removal_seeds",
+        "Object removal over three seeds (`benchmarks/quality/removal_seeds.py`)",
+        "Both removal protocols' all-reference fills on seeds 0-2 (the sections above are seed 0 alone, "
+        "whose cases can swing a set by dB), the default against registering each reference with the "
+        "target alone (`perpair`: `registration.joint=off`).",
+        [PY, "benchmarks/quality/removal_seeds.py", "--variant", "perpair:registration.joint=off"],
     ),
     Section(
         "painter",

@@ -17,32 +17,31 @@ fill is at least as good as the best single reference (seed means).
 from __future__ import annotations
 
 import argparse
-import csv
 import statistics
-import subprocess
 import sys
 import tempfile
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root: benchmarks.common
-from benchmarks.common import MULTIVIEW
-
-PY = sys.executable
+from benchmarks.common import MULTIVIEW, add_sweep_arguments, eval_scores, sweep_variants
 
 
 def run_eval(out: Path, seed: int, references: str, overrides: list[str]) -> dict[str, dict[str, float]]:
     """``geofill eval`` on the DEV multi-reference sets: {set: {method: hole PSNR}}."""
-    cmd = [PY, "-m", "geofill.cli", "eval", "--pairs", str(MULTIVIEW), "--out", str(out)]
-    cmd += ["--methods", "geofill", "--references", references, "--seed", str(seed)]
+    args = [
+        "--pairs",
+        str(MULTIVIEW),
+        "--methods",
+        "geofill",
+        "--references",
+        references,
+        "--seed",
+        str(seed),
+    ]
     for kv in overrides:
-        cmd += ["--set", kv]
-    subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
-    scores: dict[str, dict[str, float]] = {}
-    with open(out / "results.csv", newline="") as f:
-        for row in csv.DictReader(f):
-            if row["psnr_hole"]:
-                scores.setdefault(row["pair"], {})[row["method"]] = float(row["psnr_hole"])
-    return scores
+        args += ["--set", kv]
+    got = eval_scores(out, args)
+    return {pair: {m: v["psnr_hole"] for m, v in methods.items()} for pair, methods in got.items()}
 
 
 def summarise(
@@ -98,25 +97,14 @@ def summarise(
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seeds", default="0,1,2", help="comma-separated hole seeds (default 0,1,2)")
+    add_sweep_arguments(ap, "an all-reference row with these settings on top of --set (repeatable)")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="settings of every run")
-    ap.add_argument(
-        "--variant",
-        action="append",
-        default=[],
-        metavar="NAME:KEY=VALUE[;KEY=VALUE...]",
-        help="an all-reference row with these settings on top of --set (repeatable)",
-    )
-    ap.add_argument("--keep", type=Path, help="keep the eval folders here (default: a temporary folder)")
     args = ap.parse_args(argv)
     if not MULTIVIEW.is_dir():
         print(f"skipped: {MULTIVIEW} not found")
         return 0
     seeds = [int(s) for s in args.seeds.split(",")]
-    variants = []
-    for spec in args.variant:
-        name, _, settings = spec.partition(":")
-        variants.append((name, [kv for kv in settings.split(";") if kv]))
+    variants = sweep_variants(args.variant)
     with tempfile.TemporaryDirectory() as tmp:
         root = args.keep or Path(tmp)
         singles: dict[int, dict[str, dict[str, float]]] = {}
