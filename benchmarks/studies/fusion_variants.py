@@ -19,6 +19,7 @@ time, then each set's figures.
 from __future__ import annotations
 
 import argparse
+import hashlib
 import pickle
 import sys
 import time
@@ -65,10 +66,11 @@ def _renders(
     from geofill.progress import Progress
 
     cfg = FillConfig().updated(parse_overrides(list(settings))) if settings else FillConfig()
-    tag = "".join(f"_{item}" for item in settings)
+    # Keyed by the whole configuration, so that renders cached under other defaults are not reused.
+    tag = hashlib.sha256(repr(cfg).encode()).hexdigest()[:12]
     out = []
     for set_id, pair, shown, hole, truth, objects in _cases(pairs, protocol, seed):
-        path = cache / f"{protocol}_{seed}{tag}_{set_id}.pkl" if cache else None
+        path = cache / f"{protocol}_{seed}_{tag}_{set_id}.pkl" if cache else None
         if path is not None and path.is_file():
             ctx, refs = pickle.loads(path.read_bytes())
             ctx = replace(ctx, inpainter=prepare_fill(shown, hole, pair.sources, cfg).inpainter)

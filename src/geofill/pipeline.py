@@ -497,8 +497,6 @@ def fill(
         name = source_names[i] if source_names is not None else ""
         refs.append(ReferenceArtifacts(i + 1, source, e, exclude, name=name))
     refs, across = run_all_references(ctx, refs, prog)
-    if not joint_available() and many and cfg.registration.joint == "auto":
-        prog.say(across.registration)
     with prog.stage("fuse") as notes:
         fusion = fuse_references(ctx.target, ctx.hole, [r for r in refs if r.usable], cfg)
         notes.append(fusion.summary())
@@ -690,14 +688,14 @@ def run_all_references(
             prog.advance(sum(r.focal is not None for r in refs))  # their focal stage will not run
         else:
             prog.advance(many)
-    registration = ""
-    if many and past("pose"):
-        registration = "per pair (registration.joint=off)"
+    registration = "per pair (registration.joint=off)" if many and past("pose") else ""
     if many and cfg.registration.joint == "auto" and past("pose"):
         refs = _run_references(ctx, refs, prog, until="pose")  # the per-pair ones, to compare
         with prog.stage("joint registration") as notes:
             refs, registration = joint_registration(ctx, refs)
             notes.append(registration)
+        if not joint_available():  # the default asks for it: the user hears what installs it
+            prog.say(registration)
     multiview = None
     if many and cfg.multiview.depth and past("optimize"):
         refs = _run_references(ctx, refs, prog, until="optimize")

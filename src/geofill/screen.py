@@ -120,14 +120,14 @@ def screen_render(
     focal: FocalEstimate,
     pose: PoseEstimate,
     cfg: FillConfig,
-    located: tuple[np.ndarray | None, int] | None = None,
+    location: tuple[np.ndarray | None, int] | None = None,
     object_seen: np.ndarray | None = None,
 ) -> ScreenedRender:
     """Take out of ``refined`` what shows the removed object again, what comes from reference pixels
     the user masked and what continues a stranger. ``target``: the target with its hole blanked
     (HxWx3 uint8); ``shown``: the target as the user gave it when its hole shows something to
     remove, else None; ``exclude``: the reference's own mask (HxW bool at the source's input size,
-    True = never copy) or None; ``source``: the reference at input size; ``located``:
+    True = never copy) or None; ``source``: the reference at input size; ``location``:
     :func:`locate_object`'s result when the render stage already looked for the object, and
     ``object_seen`` where it left the object out of the mesh and the object would have shown (counted
     as refused where nothing else covers it)."""
@@ -142,7 +142,7 @@ def screen_render(
         refused_masked[rows, cols] = _sampled(exclude, field, rows, cols) & covered
     object_matches, located = 0, False
     if shown is not None:
-        in_source, object_matches = located or locate_object(shown, source, views, matches, focal, pose, cfg)
+        in_source, object_matches = location or locate_object(shown, source, views, matches, focal, pose, cfg)
         located = in_source is not None
         refused_object = np.zeros(hole.shape, bool)
         if located:
