@@ -64,20 +64,51 @@ def _fox_lower():
     return pair, pair_geometry(pair), np.asarray(pair_mask(pair, 0)) > 0
 
 
-def test_colmap_registers_every_fox_reference_within_a_degree_of_its_gt_pose_the_same_twice():
+def _sift(images, hole: np.ndarray) -> list:
+    """The match stage's SIFT keypoints of the target (outside ``hole``) and of each source."""
+    from geofill.match.features import detect_sift, keypoint_mask, to_gray_u8
+
+    target, *sources = images
+    return [detect_sift(to_gray_u8(target), 4000, keypoint_mask(hole, 0))] + [
+        detect_sift(to_gray_u8(s), 4000) for s in sources
+    ]
+
+
+@pytest.mark.parametrize("features", ["colmap", "matching"])
+def test_colmap_registers_every_fox_reference_within_a_degree_of_its_gt_pose_the_same_twice(features):
     """COLMAP's estimate on a real set with GT poses, the evaluation's hole masked, started from
-    the default focal prior; a second run gives the same cameras to the bit."""
+    the default focal prior, from its own SIFT or from the match stage's; a second run gives the
+    same cameras to the bit."""
     pair, geo, hole = _fox_lower()
     h, w = pair.target.shape[:2]
     f0 = default_focal_px(w, h)
-    cams = register_jointly(pair.target, hole, pair.sources, f0, [f0] * len(pair.sources))
+    given = _sift([pair.target, *pair.sources], hole) if features == "matching" else None
+
+    def register() -> list[JointCamera]:
+        return register_jointly(pair.target, hole, pair.sources, f0, [f0] * len(pair.sources), features=given)
+
+    cams = register()
     assert len(cams) == len(pair.sources) and all(c is not None for c in cams)
     for c, T in zip(cams, geo.T_source_to_target, strict=True):
         assert pose_errors_deg(c.T, T)[0] < 1.0
         assert c.focal_target == pytest.approx(geo.K_target[0, 0], rel=0.03)
-    again = register_jointly(pair.target, hole, pair.sources, f0, [f0] * len(pair.sources))
-    for a, b in zip(cams, again, strict=True):
+    for a, b in zip(cams, register(), strict=True):
         assert np.array_equal(a.T, b.T) and a.focal_target == b.focal_target
+
+
+def test_small_images_are_registered_from_the_match_stages_features():
+    """320x240 rendered views (true focal 187.5 px), COLMAP started 16 % short, given the match
+    stage's SIFT (OpenCV's, which starts from the upsampled octave): the true focal and rotations."""
+    pytest.importorskip("pycolmap")
+    v = make_views(2)
+    hole = np.zeros((240, 320), bool)
+    hole[90:150, 130:190] = True
+    cams = register_jointly(
+        v.target, hole, v.sources, 157.0, [157.0, 157.0], features=_sift([v.target, *v.sources], hole)
+    )
+    for c, T in zip(cams, v.T_source_to_target, strict=True):
+        assert c is not None and c.focal_target == pytest.approx(187.5, rel=0.01)
+        assert pose_errors_deg(c.T, T)[0] < 0.2
 
 
 def test_small_images_are_registered_from_the_upsampled_octave(monkeypatch):
@@ -114,11 +145,16 @@ def _rendered_views():
     return v, hole
 
 
-def test_a_fill_on_rendered_views_gets_colmaps_focal_and_pose_right():
+@pytest.mark.parametrize("features", ["colmap", "matching"])
+def test_a_fill_on_rendered_views_gets_colmaps_focal_and_pose_right(features):
     """The joint registration starts from the pairs' focal estimate: started from the default
-    prior instead, COLMAP flips these scenes' translation (see the next test)."""
+    prior instead, COLMAP flips these scenes' translation (see the next test). COLMAP's own
+    features (extracted while the pairs are matched) or the match stage's."""
     v, hole = _rendered_views()
-    result = fill(blanked(v.target, hole), hole, v.sources, FillConfig())  # joint registration by default
+    cfg = FillConfig().updated({"registration.features": features})  # joint registration by default
+    result = fill(blanked(v.target, hole), hole, v.sources, cfg)
+    # The target's keypoints are detected once for all pairs (and given to COLMAP with "matching").
+    assert result.references[0].matches.target_features is result.references[1].matches.target_features
     for ref, T in zip(result.references, v.T_source_to_target, strict=True):
         assert ref.focal.method == "joint" and ref.pose.status == "ok"
         assert ref.focal.K_target.fx == pytest.approx(300.0, rel=0.02)
@@ -140,7 +176,7 @@ def test_a_colmap_model_the_pairs_matches_contradict_is_refused_for_the_per_pair
     f0 = default_focal_px(640, 480)
     bad = register_jointly(v.target, hole, v.sources, f0, [f0, f0])
     assert all(max(pose_errors_deg(c.T, T)) > 90 for c, T in zip(bad, v.T_source_to_target, strict=True))
-    monkeypatch.setattr(pipeline, "register_jointly", lambda *a: bad)
+    monkeypatch.setattr(pipeline, "register_joint", lambda *a: bad)
     out = io.StringIO()
     target = blanked(v.target, hole)
     cfg = FillConfig().updated({"registration.joint": "auto"})

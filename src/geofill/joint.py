@@ -8,13 +8,18 @@ it registers every reference to 0.17-0.72 deg and the focal to 1-1.4 %, where th
 err by up to 20 deg and -44..+16 % (``benchmarks/studies/joint_registration.py``). Where it
 registers nothing (the Kinect living room) or leaves out the target or a reference, that
 reference keeps the per-pair path; without the extra every reference does.
+
+In two halves: :func:`extract` (the images and their features in COLMAP's database) needs no focal
+length, so the fill runs it while the pairs are matched; :func:`register` (matching, mapping) starts
+from the pairs' focal estimate.
 """
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import tempfile
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -26,6 +31,7 @@ from .camera import Intrinsics, make_pose
 from .config import GeometryConfig, IntrinsicsConfig
 from .focal import FocalEstimate, prior_sigma
 from .match import Matches
+from .match.features import Features
 from .pose import PoseEstimate, normalise, parallax_deg
 from .utils.resolution import resize_long, resize_mask_any
 
@@ -33,6 +39,8 @@ from .utils.resolution import resize_long, resize_mask_any
 #: needed at 320 px (rendered views); at 624 px (the Kinect living room) it cost 0.9 s of a 2-s fill
 #: for a change within noise.
 UPSAMPLE_BELOW_PX = 480
+
+FAST_PNG = [cv2.IMWRITE_PNG_COMPRESSION, 1]  # written once, read once: size does not matter
 
 
 @dataclass(frozen=True)
@@ -49,83 +57,102 @@ def available() -> bool:
     return extras.available("pycolmap")
 
 
-def register_jointly(
+@dataclass
+class JointDatabase:
+    """COLMAP's database of a joint registration with every image's features (:func:`extract`),
+    waiting for the focal lengths to start from (:func:`register`). Its folder is removed once
+    registered."""
+
+    folder: tempfile.TemporaryDirectory
+    names: list[str]  # target.png, then each source's name in COLMAP's database
+    shrink: list[float]  # the factor each image was resized by for COLMAP
+
+    @property
+    def path(self) -> Path:
+        return Path(self.folder.name)
+
+
+def extract(
     target: np.ndarray,
     hole: np.ndarray,
     sources: Sequence[np.ndarray],
-    focal_target: float,
-    focal_sources: Sequence[float],
+    one_camera: bool,
     max_features: int = 2048,
     max_side: int = 0,
-) -> list[JointCamera | None]:
-    """COLMAP's registration of ``target`` (8-bit grey or RGB; its ``hole`` masked out for the
-    features) and every source: one entry per source, None where the target or that source is not
-    in the largest model. Each camera starts from the given focal (px of these images; COLMAP's
-    own start, 1.2 x the long side, let the rendered 375-px scenes drift to x2.2 with the
-    translation flipped). One shared camera when every image has the same size and focal.
-    Deterministic: fixed RANSAC seeds, one thread. ``max_side`` > 0: COLMAP
-    sees the images shrunk to that long side (the focal lengths come back in the given images' px)."""
+    features: Sequence[Features] | None = None,
+) -> JointDatabase:
+    """The first half of :func:`register_jointly`, which needs no focal length: it can run while
+    the pairs are still matched."""
     import pycolmap
 
+    if features is not None:
+        max_side = 0
     shrink = [_shrink(img.shape, max_side) for img in [target, *sources]]
     images_in = [resize_long(img, max_side) if max_side else img for img in [target, *sources]]
     hole = resize_mask_any(hole, max_side) if max_side else hole
-    focals = [f * k for f, k in zip([float(focal_target), *map(float, focal_sources)], shrink, strict=True)]
-    with tempfile.TemporaryDirectory(prefix="geofill-joint-") as tmp:
-        work = Path(tmp)
-        images, masks = work / "images", work / "masks"
-        images.mkdir()
-        masks.mkdir()
-        # Named by content, not by position: COLMAP's incremental mapping depends on the images'
-        # order, and the fill must not depend on the order the references are given in.
-        rank = np.argsort([hashlib.sha256(img.tobytes()).hexdigest() for img in sources], kind="stable")
-        names = ["target.png"] + [""] * len(sources)
-        for position, k in enumerate(rank):
-            names[1 + k] = f"source{position}.png"
-        fast_png = [cv2.IMWRITE_PNG_COMPRESSION, 1]  # written once, read once: size does not matter
-        for name, img in zip(names, images_in, strict=True):
-            grey = img if img.ndim == 2 else cv2.cvtColor(img, cv2.COLOR_RGB2GRAY)
-            cv2.imwrite(str(images / name), grey, fast_png)
-            keep = ~hole if name == "target.png" else np.ones(img.shape[:2], bool)
-            cv2.imwrite(str(masks / f"{name}.png"), keep.astype(np.uint8) * 255, fast_png)  # 0 = ignored
-        same = len({img.shape[:2] for img in images_in}) == 1 and len(set(focals)) == 1
-        reader = pycolmap.ImageReaderOptions()
-        # geofill models no lens distortion: a radial term fitted here and then dropped cost
-        # COLMAP's poses half their agreement with a pair's own matches on fox upper.
-        reader.camera_model = "SIMPLE_PINHOLE"
-        reader.mask_path = str(masks)
-        extraction = pycolmap.FeatureExtractionOptions()
-        extraction.sift.max_num_features = max_features
-        # No upsampled octave (a third of the time, same poses) unless the images are small: on the
-        # 320-px rendered view sets COLMAP's focal came out 8 % short from the few features of octave 0.
-        small = max(max(img.shape[:2]) for img in images_in) < UPSAMPLE_BELOW_PX
-        extraction.sift.first_octave = -1 if small else 0
-        # COLMAP on one thread throughout: with its threads 1 fill in 5 still differed run to run, and
-        # one extraction thread measured no slower on 2 busy cores (3.36 vs 3.58 s, fox upper).
-        extraction.num_threads = 1
-        mode = pycolmap.CameraMode.SINGLE if same else pycolmap.CameraMode.PER_IMAGE
-        db_path = work / "db.db"
-        level = pycolmap.logging.minloglevel
-        pycolmap.logging.minloglevel = 3  # its step-by-step log and "no model" errors: the stage line says it
-        try:
+    folder = tempfile.TemporaryDirectory(prefix="geofill-joint-")
+    work = Path(folder.name)
+    images = work / "images"
+    images.mkdir()
+    # Named by content, not by position: COLMAP's incremental mapping depends on the images'
+    # order, and the fill must not depend on the order the references are given in.
+    rank = np.argsort([hashlib.sha256(img.tobytes()).hexdigest() for img in sources], kind="stable")
+    names = ["target.png"] + [""] * len(sources)
+    for position, k in enumerate(rank):
+        names[1 + k] = f"source{position}.png"
+    for name, img in zip(names, images_in, strict=True):
+        grey = img if img.ndim == 2 else cv2.cvtColor(img, cv2.COLOR_RGB2GRAY)
+        cv2.imwrite(str(images / name), grey, FAST_PNG)
+    same = len({img.shape[:2] for img in images_in}) == 1 and one_camera
+    reader = pycolmap.ImageReaderOptions()
+    # geofill models no lens distortion: a radial term fitted here and then dropped cost
+    # COLMAP's poses half their agreement with a pair's own matches on fox upper.
+    reader.camera_model = "SIMPLE_PINHOLE"
+    mode = pycolmap.CameraMode.SINGLE if same else pycolmap.CameraMode.PER_IMAGE
+    db_path = work / "db.db"
+    with _quiet():
+        pycolmap.set_random_seed(0)
+        if features is None:
+            _extract_features(db_path, images, names, images_in, hole, mode, reader, max_features)
+        else:
+            _import_features(db_path, images, names, features, mode, reader)
+    return JointDatabase(folder, names, shrink)
+
+
+def register(
+    db: JointDatabase, focal_target: float, focal_sources: Sequence[float], threads: int = 1
+) -> list[JointCamera | None]:
+    """The second half of :func:`register_jointly`: COLMAP's matching and mapping from these focal
+    lengths (px of the images given to :func:`extract`)."""
+    import pycolmap
+
+    focals = [
+        f * k for f, k in zip([float(focal_target), *map(float, focal_sources)], db.shrink, strict=True)
+    ]
+    work, names = db.path, db.names
+    try:
+        with _quiet():
             pycolmap.set_random_seed(0)
-            pycolmap.extract_features(
-                db_path, images, camera_mode=mode, reader_options=reader, extraction_options=extraction
-            )
-            _seed_focals(db_path, names, focals)
+            _seed_focals(work / "db.db", names, focals)
             verification = pycolmap.TwoViewGeometryOptions()
             verification.ransac.random_seed = 0
             matching = pycolmap.FeatureMatchingOptions()
-            matching.num_threads = 1
-            pycolmap.match_exhaustive(db_path, matching_options=matching, verification_options=verification)
+            # Each pair's matching and verification is seeded on its own, so threads do not change the
+            # result (5 runs identical on fox upper); 2 threads: 0.50 -> 0.31 s on the tower.
+            matching.num_threads = threads
+            pycolmap.match_exhaustive(
+                work / "db.db", matching_options=matching, verification_options=verification
+            )
             mapping = pycolmap.IncrementalPipelineOptions()
             mapping.num_threads = 1  # no run-to-run differences from the order threads finish in (~0.3 s)
             mapping.random_seed = mapping.mapper.random_seed = mapping.triangulation.random_seed = 0
             mapping.mapper.num_threads = 1
-            maps = pycolmap.incremental_mapping(db_path, images, work / "sparse", options=mapping)
-        finally:
-            pycolmap.logging.minloglevel = level
-    none: list[JointCamera | None] = [None] * len(sources)
+            maps = pycolmap.incremental_mapping(
+                work / "db.db", work / "images", work / "sparse", options=mapping
+            )
+    finally:
+        db.folder.cleanup()
+    none: list[JointCamera | None] = [None] * (len(names) - 1)
     if not maps:
         return none
     rec = max(maps.values(), key=lambda r: r.num_reg_images())
@@ -140,9 +167,9 @@ def register_jointly(
 
     t = by_name["target.png"]
     w_t = world_to_cam(t)
-    f_t = float(rec.cameras[t.camera_id].params[0]) / shrink[0]
+    f_t = float(rec.cameras[t.camera_id].params[0]) / db.shrink[0]
     out = []
-    for name, k in zip(names[1:], shrink[1:], strict=True):
+    for name, k in zip(names[1:], db.shrink[1:], strict=True):
         img = by_name.get(name)
         if img is None:
             out.append(None)
@@ -152,12 +179,106 @@ def register_jointly(
     return out
 
 
+def register_jointly(
+    target: np.ndarray,
+    hole: np.ndarray,
+    sources: Sequence[np.ndarray],
+    focal_target: float,
+    focal_sources: Sequence[float],
+    max_features: int = 2048,
+    max_side: int = 0,
+    features: Sequence[Features] | None = None,
+    threads: int = 1,
+) -> list[JointCamera | None]:
+    """COLMAP's registration of ``target`` (8-bit grey or RGB; its ``hole`` masked out for the
+    features) and every source: one entry per source, None where the target or that source is not
+    in the largest model. Each camera starts from the given focal (px of these images; COLMAP's
+    own start, 1.2 x the long side, let the rendered 375-px scenes drift to x2.2 with the
+    translation flipped). One shared camera when every image has the same size and focal.
+    Deterministic: fixed RANSAC seeds, mapping on one thread. ``max_side`` > 0: COLMAP
+    sees the images shrunk to that long side (the focal lengths come back in the given images' px).
+    ``features``: the target's (outside the hole) and each source's SIFT keypoints in these images'
+    px, used instead of COLMAP's own detector (``max_features`` and ``max_side`` do not apply).
+    ``threads``: for the matching (the rest runs on one)."""
+    one = len({float(focal_target), *map(float, focal_sources)}) == 1
+    db = extract(target, hole, sources, one, max_features, max_side, features)
+    return register(db, focal_target, focal_sources, threads)
+
+
+@contextlib.contextmanager
+def _quiet() -> Iterator[None]:
+    """COLMAP's step-by-step log and its "no model" errors silenced: the stage line says it."""
+    import pycolmap
+
+    level = pycolmap.logging.minloglevel
+    pycolmap.logging.minloglevel = 3
+    try:
+        yield
+    finally:
+        pycolmap.logging.minloglevel = level
+
+
 def _shrink(shape: tuple[int, ...], max_side: int) -> float:
     """The factor :func:`resize_long` scales an image of ``shape`` by (1 when ``max_side`` is 0)."""
     if not max_side or max(shape[:2]) <= max_side:
         return 1.0
     h, w = shape[:2]
     return max(round(w * max_side / max(h, w)), 1) / w
+
+
+def _extract_features(
+    db_path: Path,
+    images: Path,
+    names: Sequence[str],
+    pixels: Sequence[np.ndarray],
+    hole: np.ndarray,
+    mode,
+    reader,
+    max_features: int,
+) -> None:
+    """COLMAP's database with the images and its own SIFT features, none in the target's hole."""
+    import pycolmap
+
+    masks = images.parent / "masks"
+    masks.mkdir()
+    for name, img in zip(names, pixels, strict=True):
+        keep = ~hole if name == "target.png" else np.ones(img.shape[:2], bool)
+        cv2.imwrite(str(masks / f"{name}.png"), keep.astype(np.uint8) * 255, FAST_PNG)  # 0 = ignored
+    reader.mask_path = str(masks)
+    extraction = pycolmap.FeatureExtractionOptions()
+    extraction.sift.max_num_features = max_features
+    # No upsampled octave (a third of the time, same poses) unless the images are small: on the
+    # 320-px rendered view sets COLMAP's focal came out 8 % short from the few features of octave 0.
+    small = max(max(img.shape[:2]) for img in pixels) < UPSAMPLE_BELOW_PX
+    extraction.sift.first_octave = -1 if small else 0
+    # One thread: with its threads 1 fill in 5 still differed run to run, and one extraction thread
+    # measured no slower on 2 busy cores (3.36 vs 3.58 s, fox upper).
+    extraction.num_threads = 1
+    pycolmap.extract_features(
+        db_path, images, camera_mode=mode, reader_options=reader, extraction_options=extraction
+    )
+
+
+def _import_features(
+    db_path: Path, images: Path, names: Sequence[str], features: Sequence[Features], mode, reader
+) -> None:
+    """COLMAP's database with the images and the given keypoints as its SIFT features."""
+    import pycolmap
+
+    pycolmap.Database.open(db_path).close()
+    pycolmap.import_images(db_path, images, mode, list(names), reader)
+    db = pycolmap.Database.open(db_path)
+    try:
+        for img in db.read_all_images():
+            f = features[list(names).index(img.name)]
+            # COLMAP puts pixel centres at +0.5 and stores SIFT as bytes of 512 x the unit descriptor.
+            db.write_keypoints(img.image_id, (f.pts + 0.5).astype(np.float32))
+            desc = np.clip(np.rint(f.desc * 512.0), 0, 255).astype(np.uint8)
+            db.write_descriptors(
+                img.image_id, pycolmap.FeatureDescriptors(pycolmap.FeatureExtractorType.SIFT, desc)
+            )
+    finally:
+        db.close()
 
 
 def _seed_focals(db_path: Path, names: Sequence[str], focals: Sequence[float]) -> None:

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable, Sequence
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
@@ -40,9 +40,12 @@ from .focal import FocalEstimate, estimate_focal, shared_estimate, shared_focal_
 from .fuse import Fusion, fuse_references
 from .intrinsics import ExifLens
 from .io import LoadedImage, as_rgb_uint8, as_source_mask, validate_pair
-from .joint import agreeing, joint_focal, joint_pose, prior_conflict, register_jointly
+from .joint import JointDatabase, agreeing, joint_focal, joint_pose, prior_conflict
 from .joint import available as joint_available
+from .joint import extract as extract_joint
+from .joint import register as register_joint
 from .match import Matches, match_pair
+from .match.features import Features
 from .multiview import MultiViewDepth, ViewGeometry, multiview_depth
 from .optimize.stage import Geometry, optimize_geometry
 from .pose import PoseEstimate, estimate_pose
@@ -576,13 +579,35 @@ def one_camera(refs: list[ReferenceArtifacts]) -> bool:
     return len(priors) == 1
 
 
+def joint_input(ctx: FillContext, refs: list[ReferenceArtifacts]) -> JointDatabase | None:
+    """The joint registration's features of the target and every prepared reference (after the
+    ``prepare`` stage for COLMAP's own, after ``match`` for the match stage's); None where fewer
+    than two references can take part."""
+    cfg = ctx.cfg
+    own = cfg.registration.features == "matching"
+    live = _joint_live(refs, own)
+    if len(live) < 2:
+        return None
+    features = [_sift_of(live[0])[0]] + [_sift_of(r)[1] for r in live] if own else None
+    first = live[0].views
+    return extract_joint(
+        first.target_gray, first.hole, [r.views.source_gray for r in live], one_camera(live),
+        cfg.registration.max_features, cfg.registration.max_side, features,
+    )  # fmt: skip
+
+
+def _joint_live(refs: list[ReferenceArtifacts], own_features: bool) -> list[ReferenceArtifacts]:
+    return [r for r in refs if r.views is not None and (not own_features or _sift_of(r) is not None)]
+
+
 def joint_registration(
-    ctx: FillContext, refs: list[ReferenceArtifacts]
+    ctx: FillContext, refs: list[ReferenceArtifacts], extracted: Future | None = None
 ) -> tuple[list[ReferenceArtifacts], str]:
     """Every reference with a per-pair focal and pose that the joint registration
     (:mod:`geofill.joint`) places together with the target, and whose own matches its geometry
     explains about as well as the per-pair focal and pose do, given COLMAP's focal and pose; the
-    others keep the per-pair ones. Also the line saying what happened."""
+    others keep the per-pair ones. Also the line saying what happened. ``extracted``: the pending
+    :func:`joint_input` started before the pairs were matched (else it runs here)."""
     cfg = ctx.cfg
     if not joint_available():
         return (
@@ -590,22 +615,19 @@ def joint_registration(
             f"registered pair by pair: registering several references together needs the 'sfm' extra "
             f"({install_hint('pycolmap')})",
         )
-    live = [r for r in refs if r.views is not None]
-    if len(live) < 2:
+    db = extracted.result() if extracted is not None else joint_input(ctx, refs)
+    if db is None:
         return refs, "per-pair registration: fewer than two references were prepared"
-    first = live[0]
+    live = _joint_live(refs, cfg.registration.features == "matching")
     estimated = [r.focal.K_target.fx for r in live if r.focal is not None]
-    f_t = float(np.median(estimated)) if estimated else first.views.K_target.fx
+    f_t = float(np.median(estimated)) if estimated else live[0].views.K_target.fx
     if one_camera(live):
         # One camera for all, from the pairs' median: seeding each image with its own pair's
         # estimate split the camera on fox upper (focal 514-983 px) and COLMAP misplaced a reference by 9 deg.
         f_s = [f_t] * len(live)
     else:
         f_s = [r.focal.K_source.fx if r.focal is not None else r.views.K_source.fx for r in live]
-    cams = register_jointly(
-        first.views.target_gray, first.views.hole, [r.views.source_gray for r in live], f_t, f_s,
-        cfg.registration.max_features, cfg.registration.max_side,
-    )  # fmt: skip
+    cams = register_joint(db, f_t, f_s, cfg.fusion.parallel)
     cam_of = {r.index: c for r, c in zip(live, cams, strict=True)}
     out, placed, refused = [], [], []
     for r in refs:
@@ -638,6 +660,14 @@ def joint_registration(
     if not placed:
         return out, f"COLMAP registered no usable reference with the target: per-pair registration{why}"
     return out, f"COLMAP registered reference(s) {', '.join(placed)} of {len(refs)} with the target{why}"
+
+
+def _sift_of(ref: ReferenceArtifacts) -> tuple[Features, Features] | None:
+    """The target's and the source's SIFT keypoints from ``ref``'s match stage (None before it)."""
+    m = ref.matches
+    if m is None or m.target_features is None or m.source_features is None:
+        return None
+    return m.target_features, m.source_features
 
 
 def multiview_step(
@@ -679,23 +709,33 @@ def run_all_references(
         return last > names.index(stage)
 
     many = len(refs) > 1
-    if past("match"):
-        if shares_camera(ctx, refs):
-            refs = _run_references(ctx, refs, prog, until="match")
-            with prog.stage("shared focal") as notes:
-                refs = shared_focal(refs, cfg)
-                notes.append(next((r.focal.summary() for r in refs if r.focal is not None), "no usable pair"))
-            prog.advance(sum(r.focal is not None for r in refs))  # their focal stage will not run
-        else:
-            prog.advance(many)
-    registration = "per pair (registration.joint=off)" if many and past("pose") else ""
-    if many and cfg.registration.joint == "auto" and past("pose"):
-        refs = _run_references(ctx, refs, prog, until="pose")  # the per-pair ones, to compare
-        with prog.stage("joint registration") as notes:
-            refs, registration = joint_registration(ctx, refs)
-            notes.append(registration)
-        if not joint_available():  # the default asks for it: the user hears what installs it
-            prog.say(registration)
+    joint = many and cfg.registration.joint == "auto" and past("pose")
+    with ThreadPoolExecutor(1, thread_name_prefix="joint") as background:
+        extracted = None
+        if joint and joint_available() and cfg.registration.features == "colmap":
+            # COLMAP's own features need only the prepared images: extracted while the pairs are
+            # matched (COLMAP releases the GIL), they take the time a core would idle.
+            refs = _run_references(ctx, refs, prog, until="prepare")
+            extracted = background.submit(joint_input, ctx, refs)
+        if past("match"):
+            if shares_camera(ctx, refs):
+                refs = _run_references(ctx, refs, prog, until="match")
+                with prog.stage("shared focal") as notes:
+                    refs = shared_focal(refs, cfg)
+                    notes.append(
+                        next((r.focal.summary() for r in refs if r.focal is not None), "no usable pair")
+                    )
+                prog.advance(sum(r.focal is not None for r in refs))  # their focal stage will not run
+            else:
+                prog.advance(many)
+        registration = "per pair (registration.joint=off)" if many and past("pose") else ""
+        if joint:
+            refs = _run_references(ctx, refs, prog, until="pose")  # the per-pair ones, to compare
+            with prog.stage("joint registration") as notes:
+                refs, registration = joint_registration(ctx, refs, extracted)
+                notes.append(registration)
+            if not joint_available():  # the default asks for it: the user hears what installs it
+                prog.say(registration)
     multiview = None
     if many and cfg.multiview.depth and past("optimize"):
         refs = _run_references(ctx, refs, prog, until="optimize")

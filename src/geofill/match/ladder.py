@@ -125,8 +125,10 @@ class Matches:
     #: Why the reference shows another scene ("" unless the ladder gave it up early).
     unrelated: str = ""
     #: The source's plain-SIFT keypoints (the first rung's), which the screen stage matches the
-    #: hole's content against; None where that rung did not run.
+    #: hole's content against and the joint registration reuses; None where that rung did not run.
     source_features: Features | None = None
+    #: The target's (outside the hole), the same for every reference of a fill.
+    target_features: Features | None = None
 
     def __len__(self) -> int:
         return int(self.pts_target.shape[0])
@@ -554,6 +556,7 @@ def match_pair(
     choice = ladder.choose()
     best = ladder.best
     elapsed = time.perf_counter() - start
+    sift = ladder.features.get(f"sift{cfg.max_features}@{cfg.sift_max_side}", (None, None))
     budget_spent = budget_spent or (elapsed >= cfg.time_budget_s and not best.report.verified)
     return Matches(
         best.pts_t,
@@ -571,7 +574,8 @@ def match_pair(
         matcher=_matcher_name(best.report.rung, ladder.learned_name),
         choice=choice,
         unrelated=unrelated,
-        source_features=ladder.features.get(f"sift{cfg.max_features}@{cfg.sift_max_side}", (None, None))[1],
+        target_features=sift[0],
+        source_features=sift[1],
     )
 
 
