@@ -265,3 +265,30 @@ def test_without_pycolmap_the_user_is_told_the_extra_and_a_single_reference_neve
     assert len(lines["two"]) == 1 and 'pip install "geofill[sfm]"' in lines["two"][0]
     assert reports["two"].startswith("registered pair by pair") and "sfm" in reports["two"]
     assert lines["one"] == [] and reports["one"] == ""
+
+
+def test_colmaps_features_are_extracted_while_matching_unless_one_thread_is_asked_for(monkeypatch):
+    """With two threads COLMAP's extraction runs in the background thread, started before the pairs
+    are matched; with one (a batch's fills) in the joint stage itself. The fill is the same to the
+    byte either way."""
+    import threading
+
+    import geofill.pipeline as pipeline
+
+    v, hole = _rendered_views()
+    seen = []
+    real = pipeline.extract_joint
+
+    def spy(*args, **kwargs):
+        seen.append(threading.current_thread().name)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(pipeline, "extract_joint", spy)
+    target = blanked(v.target, hole)
+    images = {}
+    for threads in (2, 1):
+        result = fill(target, hole, v.sources, FillConfig().updated({"fusion.parallel": threads}))
+        assert all(ref.focal.method == "joint" for ref in result.references)
+        images[threads] = result.image
+    assert seen[0].startswith("joint") and seen[1] == threading.main_thread().name
+    assert np.array_equal(images[1], images[2])

@@ -712,9 +712,10 @@ def run_all_references(
     joint = many and cfg.registration.joint == "auto" and past("pose")
     with ThreadPoolExecutor(1, thread_name_prefix="joint") as background:
         extracted = None
-        if joint and joint_available() and cfg.registration.features == "colmap":
+        if joint and joint_available() and cfg.registration.features == "colmap" and cfg.fusion.parallel > 1:
             # COLMAP's own features need only the prepared images: extracted while the pairs are
-            # matched (COLMAP releases the GIL), they take the time a core would idle.
+            # matched (COLMAP releases the GIL), they take the time a core would idle. Not with one
+            # thread asked for (a batch runs one fill per core).
             refs = _run_references(ctx, refs, prog, until="prepare")
             extracted = background.submit(joint_input, ctx, refs)
         if past("match"):
