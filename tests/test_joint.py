@@ -292,3 +292,25 @@ def test_colmaps_features_are_extracted_while_matching_unless_one_thread_is_aske
         images[threads] = result.image
     assert seen[0].startswith("joint") and seen[1] == threading.main_thread().name
     assert np.array_equal(images[1], images[2])
+
+
+def test_a_fill_failing_before_the_joint_registration_leaves_no_colmap_folder(monkeypatch, tmp_path):
+    """COLMAP's database, extracted in the background, is a temporary folder that goes with the
+    failed fill."""
+    import tempfile
+
+    import geofill.pipeline as pipeline
+
+    v, hole = _rendered_views()
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    started = []
+    real = pipeline.extract_joint
+    monkeypatch.setattr(pipeline, "extract_joint", lambda *a, **k: started.append(1) or real(*a, **k))
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("matching broke")
+
+    monkeypatch.setattr(pipeline, "match_pair", broken)
+    with pytest.raises(RuntimeError, match="matching broke"):
+        fill(blanked(v.target, hole), hole, v.sources, FillConfig())
+    assert started == [1] and list(tmp_path.iterdir()) == []

@@ -712,31 +712,14 @@ def run_all_references(
     joint = many and cfg.registration.joint == "auto" and past("pose")
     with ThreadPoolExecutor(1, thread_name_prefix="joint") as background:
         extracted = None
-        if joint and joint_available() and cfg.registration.features == "colmap" and cfg.fusion.parallel > 1:
+        colmap_features = cfg.registration.features == "colmap"
+        if joint and joint_available() and colmap_features and cfg.fusion.parallel > 1:
             # COLMAP's own features need only the prepared images: extracted while the pairs are
             # matched (COLMAP releases the GIL), they take the time a core would idle. Not with one
             # thread asked for (a batch runs one fill per core).
             refs = _run_references(ctx, refs, prog, until="prepare")
             extracted = background.submit(joint_input, ctx, refs)
-        if past("match"):
-            if shares_camera(ctx, refs):
-                refs = _run_references(ctx, refs, prog, until="match")
-                with prog.stage("shared focal") as notes:
-                    refs = shared_focal(refs, cfg)
-                    notes.append(
-                        next((r.focal.summary() for r in refs if r.focal is not None), "no usable pair")
-                    )
-                prog.advance(sum(r.focal is not None for r in refs))  # their focal stage will not run
-            else:
-                prog.advance(many)
-        registration = "per pair (registration.joint=off)" if many and past("pose") else ""
-        if joint:
-            refs = _run_references(ctx, refs, prog, until="pose")  # the per-pair ones, to compare
-            with prog.stage("joint registration") as notes:
-                refs, registration = joint_registration(ctx, refs, extracted)
-                notes.append(registration)
-            if not joint_available():  # the default asks for it: the user hears what installs it
-                prog.say(registration)
+        refs, registration = _registered(ctx, refs, prog, past, joint, extracted)
     multiview = None
     if many and cfg.multiview.depth and past("optimize"):
         refs = _run_references(ctx, refs, prog, until="optimize")
@@ -744,6 +727,38 @@ def run_all_references(
             refs, multiview = multiview_step(refs, cfg)
             notes.append(multiview.summary())
     return _run_references(ctx, refs, prog, until=until), AcrossReferences(registration, multiview)
+
+
+def _registered(
+    ctx: FillContext,
+    refs: list[ReferenceArtifacts],
+    prog: Progress,
+    past: Callable[[str], bool],
+    joint: bool,
+    extracted: Future | None,
+) -> tuple[list[ReferenceArtifacts], str]:
+    """:func:`run_all_references` up to the registration: one focal for a shared camera after
+    ``match``, then, when ``joint``, the joint registration after ``pose``; and the line saying how
+    the references were registered."""
+    cfg, many = ctx.cfg, len(refs) > 1
+    if past("match"):
+        if shares_camera(ctx, refs):
+            refs = _run_references(ctx, refs, prog, until="match")
+            with prog.stage("shared focal") as notes:
+                refs = shared_focal(refs, cfg)
+                notes.append(next((r.focal.summary() for r in refs if r.focal is not None), "no usable pair"))
+            prog.advance(sum(r.focal is not None for r in refs))  # their focal stage will not run
+        else:
+            prog.advance(many)
+    registration = "per pair (registration.joint=off)" if many and past("pose") else ""
+    if joint:
+        refs = _run_references(ctx, refs, prog, until="pose")  # the per-pair ones, to compare
+        with prog.stage("joint registration") as notes:
+            refs, registration = joint_registration(ctx, refs, extracted)
+            notes.append(registration)
+        if not joint_available():  # the default asks for it: the user hears what installs it
+            prog.say(registration)
+    return refs, registration
 
 
 def _run_references(
