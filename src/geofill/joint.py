@@ -57,15 +57,15 @@ def available() -> bool:
     return extras.available("pycolmap")
 
 
-@dataclass
+@dataclass(frozen=True)
 class JointDatabase:
     """COLMAP's database of a joint registration with every image's features (:func:`extract`),
     waiting for the focal lengths to start from (:func:`register`). Its folder is removed once
     registered."""
 
     folder: tempfile.TemporaryDirectory
-    names: list[str]  # target.png, then each source's name in COLMAP's database
-    shrink: list[float]  # the factor each image was resized by for COLMAP
+    names: tuple[str, ...]  # target.png, then each source's name in COLMAP's database
+    shrink: tuple[float, ...]  # the factor each image was resized by for COLMAP
 
     @property
     def path(self) -> Path:
@@ -116,7 +116,7 @@ def extract(
             _extract_features(db_path, images, names, images_in, hole, mode, reader, max_features)
         else:
             _import_features(db_path, images, names, features, mode, reader)
-    return JointDatabase(folder, names, shrink)
+    return JointDatabase(folder, tuple(names), tuple(shrink))
 
 
 def register(
