@@ -841,7 +841,7 @@ class RegistrationConfig:
     max_features: Annotated[int, Range(256, 65536)] = setting(
         2048,
         "SIFT features per image for the joint registration with ``features=colmap`` (COLMAP's own "
-        "detector, no upsampled octave, on the images of ``max_side``).",
+        "detector on the images of ``max_side``, from the upsampled octave only under 480 px).",
     )
     max_side: Annotated[int, Range(0, 16384)] = setting(
         800,

@@ -130,26 +130,23 @@ def register(
         f * k for f, k in zip([float(focal_target), *map(float, focal_sources)], db.shrink, strict=True)
     ]
     work, names = db.path, db.names
+    db_path = work / "db.db"
     try:
         with _quiet():
             pycolmap.set_random_seed(0)
-            _seed_focals(work / "db.db", names, focals)
+            _seed_focals(db_path, names, focals)
             verification = pycolmap.TwoViewGeometryOptions()
             verification.ransac.random_seed = 0
             matching = pycolmap.FeatureMatchingOptions()
             # Each pair's matching and verification is seeded on its own, so threads do not change the
             # result (5 runs identical on fox upper); 2 threads: 0.50 -> 0.31 s on the tower.
             matching.num_threads = threads
-            pycolmap.match_exhaustive(
-                work / "db.db", matching_options=matching, verification_options=verification
-            )
+            pycolmap.match_exhaustive(db_path, matching_options=matching, verification_options=verification)
             mapping = pycolmap.IncrementalPipelineOptions()
             mapping.num_threads = 1  # no run-to-run differences from the order threads finish in (~0.3 s)
             mapping.random_seed = mapping.mapper.random_seed = mapping.triangulation.random_seed = 0
             mapping.mapper.num_threads = 1
-            maps = pycolmap.incremental_mapping(
-                work / "db.db", work / "images", work / "sparse", options=mapping
-            )
+            maps = pycolmap.incremental_mapping(db_path, work / "images", work / "sparse", options=mapping)
     finally:
         db.folder.cleanup()
     none: list[JointCamera | None] = [None] * (len(names) - 1)
