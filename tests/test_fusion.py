@@ -232,3 +232,74 @@ def test_the_fuse_stages_refusals_are_reported_as_strangers():
     assert fractions == {"stranger": pytest.approx((_DISC.sum() + beside.sum()) / _HOLE.sum())}  # 0.36
     words = FillReport(refused_fraction=fractions).refused_words()
     assert words.startswith("36% of the hole was not copied because the references showed something there")
+
+
+def _covering(index: int, image: np.ndarray, alpha: np.ndarray | None = None):
+    """A usable reference whose render is ``image`` (any size) where ``alpha`` (all of it when None)."""
+    h, w = image.shape[:2]
+    alpha = np.ones((h, w), bool) if alpha is None else alpha
+    ys, xs = np.mgrid[0:h, 0:w].astype(np.float32)
+    render = RenderResult(xs, ys, np.full((h, w), 10.0, np.float32), alpha, None)
+    refined = SimpleNamespace(image=image, alpha=alpha, render=render)
+    screened = SimpleNamespace(image=image, alpha=alpha, refused_stranger=None)
+    K = Intrinsics(2.0 * w, 2.0 * w, w / 2, h / 2, w, h)
+    T = np.eye(4)
+    T[0, 3] = 0.1 * index
+    source = np.full((h, w, 3), index, np.uint8)
+    geometry = SimpleNamespace(K_target=K, T=T)
+    return SimpleNamespace(index=index, source=source, refined=refined, screened=screened, geometry=geometry)
+
+
+def test_a_render_that_does_not_line_up_with_the_ring_is_painted_over():
+    # Reference 1 is 40 levels off the target on the ring (a wrong colour or a misplaced surface);
+    # reference 2 matches but covers only the hole's left half.
+    left = np.zeros((_H, _W), bool)
+    left[:, :80] = True
+    refs = [_covering(1, _grey(140)), _covering(2, _grey(100), left)]
+    cfg = FillConfig().updated({"fusion.cross_strangers": "off", "fusion.feather_px": 0.0})
+    fusion = fuse_references(_target(), _HOLE, refs, cfg)
+    right = _HOLE & ~left
+    assert not fusion.alpha[right].any()  # left to the painter
+    assert (fusion.image[_HOLE & left] == 100).all()
+    np.testing.assert_array_equal(fusion.refused_mismatch, right)
+    assert fusion.report()["refused_mismatch_px"] == int(right.sum())
+    # Off: every covered pixel is copied, the misfit too.
+    off = fuse_references(_target(), _HOLE, refs, cfg.updated({"fusion.max_ring_error": 0.0}))
+    assert off.refused_mismatch is None and (off.image[right] == 140).all()
+
+
+def test_a_textured_ring_tolerates_more_difference_than_a_flat_one():
+    # At 640 px the texture is measured against a 1-px blur. Stripes of 60 and 140 differ from it by
+    # 37-39 levels; a render 25 levels brighter than the target is kept beside them (limit 15 + 37)
+    # and refused beside a flat ring (limit 15 + 0).
+    h, w = 480, 640
+    hole = np.zeros((h, w), bool)
+    hole[120:360, 160:480] = True
+    stripes = np.full((h, w, 3), 60, np.uint8)
+    stripes[:, ::2] = 140
+    flat = np.full((h, w, 3), 100, np.uint8)
+    cfg = FillConfig().updated({"fusion.cross_strangers": "off"})
+    for target, kept in ((stripes, True), (flat, False)):
+        brighter = (target.astype(int) + 25).astype(np.uint8)
+        refs = [_covering(1, brighter), _covering(2, brighter)]
+        shown = target.copy()
+        shown[hole] = 0
+        fusion = fuse_references(shown, hole, refs, cfg)
+        assert fusion.alpha[hole].all() == kept
+        assert (fusion.refused_mismatch is None) == kept
+        no_texture = fuse_references(shown, hole, refs, cfg.updated({"fusion.ring_texture_factor": 0.0}))
+        assert not no_texture.alpha[hole].any()
+
+
+def test_the_fuse_stages_mismatch_refusals_are_reported_in_words():
+    from geofill.pipeline import FillReport, _refused_fractions
+
+    screened = SimpleNamespace(refused_object=None, refused_masked=None, refused_stranger=None)
+    fusion = Fusion(None, None, np.zeros((_H, _W), np.int16), "test", refused_mismatch=_DISC)
+    fractions = _refused_fractions(_HOLE, [SimpleNamespace(screened=screened)], fusion)
+    assert fractions == {"mismatch": pytest.approx(_DISC.sum() / _HOLE.sum())}  # 0.32
+    words = FillReport(refused_fraction=fractions).refused_words()
+    assert words == (
+        "32% of the hole was not copied because the references did not line up with your photo "
+        "around it there"
+    )

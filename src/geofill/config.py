@@ -795,6 +795,20 @@ class FusionConfig:
         "Score factor of a near surface where another reference shows one that is not near (1: no "
         "preference).",
     )
+    max_ring_error: Annotated[float, Range(0, 255)] = setting(
+        15.0,
+        "With several references, a reference is not copied where its render differs from the target on the "
+        "ring next to the pixel (mean absolute difference, 0-255, spread as for the score) by more than this "
+        "plus ``ring_texture_factor`` times the ring's own texture; what no reference may supply is painted. "
+        "0: off. DEV-MV restoration, seeds 0-2: 22.63 (off) -> 22.65 dB, at least as good as the best single "
+        "reference on 6/7 sets instead of 5/7 (docs/architecture.md).",
+    )
+    ring_texture_factor: Annotated[float, Range(0, 100)] = setting(
+        1.0,
+        "Weight of the ring's texture in ``max_ring_error``'s limit: the mean absolute difference between "
+        "the target and its 2-px blur there, which a render off by a pixel or two reaches on a textured "
+        "ring.",
+    )
     average_agreement: Annotated[float, Range(0, 255)] = setting(
         0.0,
         "``feather``/``graphcut``: the references that agree with a pixel's winner (colours within this "

@@ -13,6 +13,11 @@ reference and pixel a score in (0, 1] multiplies what can be measured there:
   samples, below 1 where the source is magnified): ``min(1, area) ** 0.5``;
 - the viewing-angle change at the surface (target ray vs. source ray): ``0.5 ** (angle / angle_scale_deg)``.
 
+With several references, a render is not copied at all where it differs from the target on the
+ring next to the pixel by more than ``max_ring_error`` plus ``ring_texture_factor`` times the ring's
+own fine texture (:func:`ring_texture`): a render that far off does not line up with the photo
+there, and what no reference may supply is painted (``Fusion.refused_mismatch``).
+
 The best-scoring reference wins each pixel. ``seams="graphcut"`` then lets OpenCV's colour-gradient
 graph cut (:class:`cv2.detail_GraphCutSeamFinder`, Kwatra et al. 2003) move the boundary between
 two references inside the pixels where both score within ``candidate_ratio`` of the best, so seams
@@ -44,6 +49,8 @@ if TYPE_CHECKING:
 _SEAM_MAX_SIDE = 640
 #: Gaussian kernels from this many taps on are applied in the Fourier domain (see gaussian_blur).
 _DFT_BLUR_TAPS = 160
+#: Sigma (px at a 1280-px long side) of the blur :func:`ring_texture` measures the target's texture by.
+_TEXTURE_BLUR_PX = 2.0
 #: Ring pixels two renders must both cover for their depth scales to be compared pixel by pixel.
 _MIN_RING_DEPTH_PX = 50
 
@@ -65,6 +72,9 @@ class Fusion:
     #: HxW bool: hole pixels where a reference's render was refused because the other references
     #: covering them show something else there (None: nothing was).
     refused_stranger: np.ndarray | None = None
+    #: HxW bool: hole pixels left to the painter because every render covering them differs from the
+    #: target on the ring next to them by more than ``max_ring_error`` allows (None: none were).
+    refused_mismatch: np.ndarray | None = None
 
     def supplied_fractions(self, hole: np.ndarray, n_references: int) -> list[float]:
         """Fraction of the hole each reference (in the order given) supplies."""
@@ -91,6 +101,8 @@ class Fusion:
         out: dict[str, Any] = {"method": self.method, "scores": list(self.scores)}
         if self.refused_stranger is not None:
             out["refused_stranger_px"] = int(np.count_nonzero(self.refused_stranger))
+        if self.refused_mismatch is not None:
+            out["refused_mismatch_px"] = int(np.count_nonzero(self.refused_mismatch))
         return out
 
 
@@ -118,13 +130,28 @@ def fuse_references(
     alphas = np.stack([r.screened.alpha[rows, cols] for r in refs])
     images = np.stack([r.screened.image[rows, cols] for r in refs]).astype(np.float32)
     ring = known_ring(hole_w, config_px(cfg.refine.band_px, hole.shape))
-    scores = np.stack(
+    spread = fc.band_sigma_px * config_px(1.0, hole.shape)
+    errors = np.stack(
         [
-            reference_score(r, images[k], target[rows, cols], ring, rows, cols, hole.shape, fc)
-            for k, r in enumerate(refs)
+            _ring_error(images[k], target[rows, cols], ring & alphas[k], spread, 2.0 * fc.band_error_scale)
+            for k in range(len(refs))
         ]
     )
+    scores = np.stack(
+        [reference_score(r, errors[k], alphas[k], rows, cols, hole.shape, fc) for k, r in enumerate(refs)]
+    )
     scores *= _consensus(images, alphas, fc.consensus_scale)
+    mismatch = None
+    if fc.max_ring_error > 0:
+        limit = fc.max_ring_error + fc.ring_texture_factor * ring_texture(
+            target[rows, cols], hole_w, ring, _TEXTURE_BLUR_PX * config_px(1.0, hole.shape), spread
+        )
+        found = (errors > limit) & alphas & hole_w
+        if found.any():
+            alphas &= ~found
+            images[found] = 0
+            mismatch = np.zeros(hole.shape, bool)
+            mismatch[rows, cols] = found.any(axis=0) & ~alphas.any(axis=0)
     if fc.geometry:
         logs, inconsistency = common_log_depth(refs, alphas, ring, rows, cols)
         scores *= geometry_factor(logs, hole_w, ring, fc)
@@ -172,7 +199,7 @@ def fuse_references(
         for k in sorted(range(len(refs)), key=lambda k: index[k])
     )
     method = f"{fc.seams} of {len(refs)} references"
-    return Fusion(image, alpha, labels, method, mean_scores, (rows, cols), refused)
+    return Fusion(image, alpha, labels, method, mean_scores, (rows, cols), refused, mismatch)
 
 
 def _in_window(mask: np.ndarray | None, rows: slice, cols: slice) -> np.ndarray:
@@ -184,23 +211,20 @@ def _in_window(mask: np.ndarray | None, rows: slice, cols: slice) -> np.ndarray:
 
 def reference_score(
     ref: ReferenceArtifacts,
-    image: np.ndarray,
-    target: np.ndarray,
-    ring: np.ndarray,
+    error: np.ndarray,
+    a: np.ndarray,
     rows: slice,
     cols: slice,
     shape: tuple[int, int],
     cfg: FusionConfig,
 ) -> np.ndarray:
-    """Score in [0, 1] of ``ref``'s screened render ``image`` (float32, the window ``rows, cols`` of
+    """Score in [0, 1] of ``ref``'s screened render (coverage ``a``, the window ``rows, cols`` of
     a target of ``shape``) at each pixel of the window, from everything but the other references
-    (0 where it has no render). ``ring``: the known pixels next to the hole, in the window."""
+    (0 where it has no render). ``error``: its :func:`_ring_error` against the target."""
     refined = ref.refined
-    a = ref.screened.alpha[rows, cols]
     if not a.any():
         return np.zeros(a.shape, np.float32)
     px = config_px(1.0, shape)
-    error = _ring_error(image, target, ring & a, cfg.band_sigma_px * px, 2.0 * cfg.band_error_scale)
     edge = cv2.distanceTransform(a.astype(np.uint8), cv2.DIST_L2, 3)
     edge_w = np.clip(edge / max(cfg.edge_distance_px * px, 1.0), 0.05, 1.0)
     area = _footprint_area(refined.render.map_x[rows, cols], refined.render.map_y[rows, cols], a)
@@ -226,6 +250,28 @@ def _ring_error(
     num = gaussian_blur(err, sigma)
     den = gaussian_blur(w, sigma)
     return (num + eps * overall) / (den + eps)
+
+
+def ring_texture(
+    target: np.ndarray, hole: np.ndarray, ring: np.ndarray, blur_px: float, spread_px: float
+) -> np.ndarray:
+    """The target's own fine texture next to each pixel of the window: the mean absolute difference
+    (0-255) between ``target`` (HxWx3 uint8) and its Gaussian blur of ``blur_px`` (the hole left
+    out) on ``ring``, spread over the window as :func:`_ring_error` spreads a render's error. A
+    render misaligned by a pixel or two differs from a textured ring by about this much.
+
+    >>> hole = np.zeros((40, 40), bool); hole[15:25, 15:25] = True
+    >>> ring = ~hole & np.pad(np.ones((20, 20), bool), 10)
+    >>> stripes = np.zeros((40, 40, 3), np.uint8); stripes[:, ::2] = 100  # a fine texture
+    >>> blank = np.full((40, 40, 3), 100, np.uint8); blank[hole] = 0  # flat, the hole blanked
+    >>> [round(float(ring_texture(t, hole, ring, 2.0, 8.0)[20, 20])) for t in (stripes, blank)]
+    [50, 0]
+    """
+    known = (~hole).astype(np.float32)
+    # Normalised: the hole's own pixels (blank, or the object to remove) must not count as texture.
+    smooth = cv2.GaussianBlur(target.astype(np.float32) * known[..., None], (0, 0), blur_px)
+    smooth /= np.maximum(cv2.GaussianBlur(known, (0, 0), blur_px), 1e-6)[..., None]
+    return _ring_error(smooth, target, ring, spread_px, 0.0)
 
 
 def gaussian_blur(image: np.ndarray, sigma: float) -> np.ndarray:

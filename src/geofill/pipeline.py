@@ -241,6 +241,7 @@ class FillReport:
             "removed_object": "the references showed the removed object",
             "masked": "it was masked in the references",
             "stranger": "the references showed something there that your photo does not show around it",
+            "mismatch": "the references did not line up with your photo around it there",
         }
         parts = [
             f"{100 * f:.0f}% of the hole was not copied because {why[k]}"
@@ -795,10 +796,10 @@ def _refused_fractions(hole: np.ndarray, used: list[ReferenceArtifacts], fusion:
         ("removed_object", "refused_object"),
         ("masked", "refused_masked"),
         ("stranger", "refused_stranger"),
+        ("mismatch", "refused_mismatch"),
     ):
-        masks = [getattr(r.screened, name) for r in used if getattr(r.screened, name) is not None]
-        if name == "refused_stranger" and fusion.refused_stranger is not None:
-            masks.append(fusion.refused_stranger)
+        masks = [getattr(r.screened, name, None) for r in used]
+        masks = [m for m in [*masks, getattr(fusion, name, None)] if m is not None]
         if masks:
             out[key] = float(np.count_nonzero(np.logical_or.reduce(masks) & hole)) / max(int(hole.sum()), 1)
     return out
