@@ -800,8 +800,10 @@ class FusionConfig:
         "With several references, a reference is not copied where its render differs from the target on the "
         "ring next to the pixel (mean absolute difference, 0-255, spread as for the score) by more than this "
         "plus ``ring_texture_factor`` times the ring's own texture; what no reference may supply is painted. "
-        "0: off. DEV-MV restoration, seeds 0-2: 22.63 (off) -> 22.65 dB, at least as good as the best single "
-        "reference on 6/7 sets instead of 5/7 (docs/architecture.md).",
+        "0: off. All references, mask seeds 0-2, off -> 15: DEV-MV restoration 22.63 -> 22.65 dB (at "
+        "least as good as the best single reference on 6/7 sets instead of 5/7; seeds 3-5: 21.10 -> "
+        "21.15, 5/7 both), strangers 17.90 -> 18.10 dB (leak 0.116 -> 0.108), static object removal "
+        "20.34 -> 20.30 dB (leak 0.029 both); docs/architecture.md.",
     )
     ring_texture_factor: Annotated[float, Range(0, 100)] = setting(
         1.0,
