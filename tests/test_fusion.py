@@ -98,19 +98,20 @@ _DISC = np.zeros((_H, _W), bool)
 cv2.circle(_DISC.view(np.uint8), (80, 60), 22, 1, -1)
 
 
-def _reference(index: int, image: np.ndarray, depth: np.ndarray, refused_stranger=None):
-    """A usable reference whose refined and screened render are ``image`` (HxWx3 uint8, covering
-    the whole image) at target-camera ``depth`` (its pair's own scale)."""
-    alpha = np.ones((_H, _W), bool)
-    ys, xs = np.mgrid[0:_H, 0:_W].astype(np.float32)
+def _reference(index: int, image: np.ndarray, depth: np.ndarray, refused_stranger=None, alpha=None):
+    """A usable reference whose refined and screened render are ``image`` (HxWx3 uint8, any size)
+    where ``alpha`` (all of it when None) at target-camera ``depth`` (its pair's own scale)."""
+    h, w = image.shape[:2]
+    alpha = np.ones((h, w), bool) if alpha is None else alpha
+    ys, xs = np.mgrid[0:h, 0:w].astype(np.float32)
     render = RenderResult(xs, ys, depth.astype(np.float32), alpha, None)
     refined = SimpleNamespace(image=image, alpha=alpha, render=render)
     screened = SimpleNamespace(image=image, alpha=alpha, refused_stranger=refused_stranger)
-    K = Intrinsics(200.0, 200.0, _W / 2, _H / 2, _W, _H)
+    K = Intrinsics(1.25 * w, 1.25 * w, w / 2, h / 2, w, h)
     T = np.eye(4)
     T[0, 3] = 0.1 * index  # the source camera beside the target's
     geometry = SimpleNamespace(K_target=K, T=T)
-    source = np.full((_H, _W, 3), index, np.uint8)  # distinct content: the fuse stage sorts by it
+    source = np.full((h, w, 3), index, np.uint8)  # distinct content: the fuse stage sorts by it
     return SimpleNamespace(index=index, source=source, refined=refined, screened=screened, geometry=geometry)
 
 
@@ -235,19 +236,8 @@ def test_the_fuse_stages_refusals_are_reported_as_strangers():
 
 
 def _covering(index: int, image: np.ndarray, alpha: np.ndarray | None = None):
-    """A usable reference whose render is ``image`` (any size) where ``alpha`` (all of it when None)."""
-    h, w = image.shape[:2]
-    alpha = np.ones((h, w), bool) if alpha is None else alpha
-    ys, xs = np.mgrid[0:h, 0:w].astype(np.float32)
-    render = RenderResult(xs, ys, np.full((h, w), 10.0, np.float32), alpha, None)
-    refined = SimpleNamespace(image=image, alpha=alpha, render=render)
-    screened = SimpleNamespace(image=image, alpha=alpha, refused_stranger=None)
-    K = Intrinsics(2.0 * w, 2.0 * w, w / 2, h / 2, w, h)
-    T = np.eye(4)
-    T[0, 3] = 0.1 * index
-    source = np.full((h, w, 3), index, np.uint8)
-    geometry = SimpleNamespace(K_target=K, T=T)
-    return SimpleNamespace(index=index, source=source, refined=refined, screened=screened, geometry=geometry)
+    """:func:`_reference` at one depth."""
+    return _reference(index, image, np.full(image.shape[:2], 10.0), alpha=alpha)
 
 
 def test_a_render_that_does_not_line_up_with_the_ring_is_painted_over():
