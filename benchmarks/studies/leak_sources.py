@@ -13,7 +13,11 @@ leak's denominator, so the classes add up to the leak):
 A render pixel "shows a stranger" by the leak's own rule (nearer to a stranger than half its
 distance to the truth, where the stranger is distinguishable).
 
-    .venv/bin/python benchmarks/studies/leak_sources.py --seed 0 --seed 1 [--cache DIR]
+``--oracle`` bounds what any stranger detection could reach in this pipeline: it prints, per set,
+hole PSNR / leak of the fill as it is, of the fill whose renders lose every pixel that shows a
+stranger (known from the truth, grown by 2 px) before the screen, and of the painter alone.
+
+    .venv/bin/python benchmarks/studies/leak_sources.py --seed 0 --seed 1 [--cache DIR] [--oracle]
 """
 
 from __future__ import annotations
@@ -21,6 +25,7 @@ from __future__ import annotations
 import argparse
 import sys
 from collections import Counter
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -67,12 +72,56 @@ def classify(ctx, refs, hole, truth, objects) -> Counter:
     return out
 
 
+def _fill(ctx, refs, hole, truth) -> np.ndarray:
+    """The fill of ``refs`` (refined renders) through the screen, fuse and composite stages."""
+    from geofill.fuse import fuse_references
+    from geofill.pipeline import composite
+
+    refs = [r for r in screened(ctx, refs, ctx.cfg) if r.usable]
+    return np.where(hole[..., None], composite(ctx, fuse_references(ctx.target, hole, refs, ctx.cfg)), truth)
+
+
+def oracle(ctx, refs, hole, truth, objects) -> list[tuple[float, float]]:
+    """(hole PSNR, leak) of the fill as it is, with every stranger pixel taken out of the renders
+    (known from the truth), and painted alone (every render's hole pixels taken out)."""
+    import cv2
+
+    from geofill.evaluation.metrics import leak, leak_masks, psnr
+
+    grow = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5))
+
+    def without(drop) -> list:
+        out = []
+        for r in refs:
+            if r.refined is None:  # dropped before the render
+                out.append(r)
+                continue
+            gone = drop(r)
+            alpha = r.refined.alpha & ~gone
+            image = np.where(alpha[..., None], r.refined.image, 0).astype(np.uint8)
+            out.append(replace(r, refined=replace(r.refined, image=image, alpha=alpha)))
+        return out
+
+    def stranger(r) -> np.ndarray:
+        shows = leak_masks(r.refined.image, truth, objects, r.refined.alpha & hole)[0]
+        return cv2.dilate(shows.astype(np.uint8), grow).astype(bool)
+
+    scored = []
+    for variant in (refs, without(stranger), without(lambda r: hole)):
+        image = _fill(ctx, variant, hole, truth)
+        scored.append((psnr(image, truth, hole), leak(image, truth, objects, hole).fraction or 0.0))
+    return scored
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seed", type=int, action="append", default=None, help="protocol seed (repeatable)")
     ap.add_argument("--pairs", action="append", default=None, help=f"as geofill eval's (default {MULTIVIEW})")
     ap.add_argument("--cache", type=Path, help="folder keeping the renders between runs")
+    ap.add_argument("--oracle", action="store_true", help="the fills without the strangers' pixels instead")
     args = ap.parse_args(argv)
+    if args.oracle:
+        return main_oracle(args)
     keys = ["leak", "all", "lone", "chosen", "c2s1", "c3s1", "c3s2", "c4s1", "c4s2", "c4s3", "other"]
     print("| seed | set | " + " | ".join(keys) + " |")
     print("|" + " --- |" * (len(keys) + 2))
@@ -88,6 +137,23 @@ def main(argv: list[str] | None = None) -> int:
             print(f"| {seed} | {set_id.removeprefix('dev_mv_')} | {cells} |", flush=True)
     mean = " | ".join(f"**{v:.3f}**" for v in np.mean(rows, axis=0))
     print(f"| | **mean** | {mean} |")
+    return 0
+
+
+def main_oracle(args) -> int:
+    """``--oracle``'s table: hole PSNR / leak per set and seed, and their means."""
+    print("| seed | set | as is | strangers known | painted |")
+    print("| --- | --- | --- | --- | --- |")
+    rows = []
+    for seed in args.seed or [0]:
+        for set_id, ctx, refs, hole, truth, objects in _renders(
+            args.pairs or [str(MULTIVIEW)], "strangers", args.cache, seed
+        ):
+            rows.append(oracle(ctx, refs, hole, truth, objects))
+            cells = " | ".join(f"{p:.2f} / {k:.3f}" for p, k in rows[-1])
+            print(f"| {seed} | {set_id.removeprefix('dev_mv_')} | {cells} |", flush=True)
+    mean = np.mean(rows, axis=0)
+    print("| | **mean** | " + " | ".join(f"**{p:.2f} / {k:.3f}**" for p, k in mean) + " |")
     return 0
 
 
