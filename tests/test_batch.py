@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from geofill.batch.display import BatchDisplay, summary_table
-from geofill.batch.runner import exit_status
+from geofill.batch.runner import _remove_unrecorded, exit_status
 from geofill.cli import main
 from geofill.errors import EXIT_FELL_BACK, EXIT_INTERRUPTED, EXIT_ITEMS_FAILED, EXIT_TERMINATED
 from geofill.synthetic import blanked, make_pair
@@ -264,6 +264,23 @@ def test_sigterm_stops_at_once_keeping_finished_items_for_resume(pairs, tmp_path
     after = {r["item"]: r for r in _records(out)}
     assert set(after) == set(names)
     assert all(after[r["item"]] == r for r in records)  # kept as they were, not run again
+
+
+def test_a_stop_removes_what_an_unrecorded_item_wrote_since_it_started(tmp_path):
+    """A worker killed after its write but before its result came back leaves an output no record
+    names; one written before the item started (an earlier run's) and other files are kept."""
+    out = tmp_path / "a.png"
+    out.write_bytes(b"earlier run")
+    old = time.time() - 60
+    os.utime(out, (old, old))
+    (tmp_path / ".a.png.123.tmp").write_bytes(b"half")  # a write cut short
+    (tmp_path / "b.png").write_bytes(b"another item")
+    _remove_unrecorded(out, since=time.time() - 1)
+    assert sorted(f.name for f in tmp_path.iterdir()) == ["a.png", "b.png"]
+    out.write_bytes(b"this run")  # written after the item started
+    _remove_unrecorded(out, since=time.time() - 1)
+    assert sorted(f.name for f in tmp_path.iterdir()) == ["b.png"]
+    _remove_unrecorded(out, since=0.0)  # nothing there: nothing to do
 
 
 def test_ray_without_the_extra_is_a_one_line_error(pairs, tmp_path, monkeypatch, capsys):

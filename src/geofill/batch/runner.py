@@ -249,6 +249,7 @@ def _run_local(tasks: Sequence[Task], out_dir: str, on_record: OnRecord, *, jobs
     of memory) fails the items in flight, which ``--resume`` runs again; the pool is replaced."""
     pending = list(reversed(tasks))
     running: dict[Future, Task] = {}
+    submitted: dict[Future, float] = {}  # wall-clock time (s) each item went to a worker
     ctx = multiprocessing.get_context("spawn")  # fork would copy the parent's torch/OpenMP threads state
     with _environment(SINGLE_THREAD_ENV):
         pool = ProcessPoolExecutor(jobs, mp_context=ctx, initializer=init_worker)
@@ -256,11 +257,13 @@ def _run_local(tasks: Sequence[Task], out_dir: str, on_record: OnRecord, *, jobs
             while pending or running:
                 while pending and len(running) < jobs:
                     task = pending.pop()
-                    running[pool.submit(run_item, *task, out_dir)] = task
+                    future = pool.submit(run_item, *task, out_dir)
+                    running[future], submitted[future] = task, time.time()
                 done, _ = wait(running, return_when=FIRST_COMPLETED)
                 broken = False
                 for future in done:
                     item, cfg = running.pop(future)
+                    submitted.pop(future)
                     try:
                         on_record(future.result())
                     except BrokenProcessPool:
@@ -277,10 +280,23 @@ def _run_local(tasks: Sequence[Task], out_dir: str, on_record: OnRecord, *, jobs
                 # Items that finished while the signal came: their outputs are written, record them.
                 if future.done() and not future.cancelled() and future.exception() is None:
                     on_record(future.result())
-                elif item.output:  # a worker killed mid-write leaves its temporary file
-                    remove_partial_writes(Path(out_dir) / item.output)
+                elif item.output:
+                    _remove_unrecorded(Path(out_dir) / item.output, submitted[future])
             raise
         pool.shutdown(wait=True)
+
+
+def _remove_unrecorded(output: Path, since: float) -> None:
+    """Remove what an item stopped in flight wrote: a worker killed mid-write leaves its temporary
+    file, and one killed after its write but before its result reached this process leaves an
+    output (modified since the item started, ``since``: wall-clock s) that no record names, which
+    ``--resume`` would run again anyway."""
+    remove_partial_writes(output)
+    try:
+        if output.stat().st_mtime >= since:
+            output.unlink()
+    except FileNotFoundError:
+        pass
 
 
 def _terminate_workers(pool: ProcessPoolExecutor) -> None:
