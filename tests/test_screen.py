@@ -126,6 +126,27 @@ def test_a_textured_stranger_that_matches_its_background_in_part_once_shifted_is
     assert not strangers(render, target, _HOLE, alpha, (720, 1280), loose).any()
 
 
+def test_a_dark_stranger_beside_a_gap_in_the_render_is_refused_whole():
+    """A render has gaps (zeros) where its mesh is cut at depth edges. A dark, textured stranger
+    beside one differs from the gap's zeros no more than from itself, and the gap must not claim it:
+    the refusal grows from where the stranger reaches beyond the hole over all of it (half of it
+    when the gap was a marker of its own)."""
+    from geofill.screen import strangers
+
+    target = _BACKGROUND.copy()
+    target[_HOLE] = 0
+    render = _BACKGROUND.copy()
+    there = np.zeros((_H, _W), bool)
+    there[40:80, 70:170] = True  # reaches beyond the hole on the right only
+    render[there] = _stripes(_H, _W, 4, 40)[there]  # dark and textured
+    alpha = np.ones((_H, _W), bool)
+    alpha[36:84, 62:70] = False  # the gap, along the stranger's far side inside the hole
+    render[~alpha] = 0
+    found = strangers(render, target, _HOLE, alpha, (720, 1280), FillConfig().screen)
+    assert found[there & _HOLE].mean() > 0.95
+    assert not found[~there & _HOLE].any()
+
+
 def test_a_textured_stranger_inside_the_hole_is_outvoted_once_the_shift_cannot_explain_it():
     from geofill.screen import cross_strangers
 

@@ -268,7 +268,9 @@ def _strangers(
     if not seeded.any() or not agree.any():
         return np.zeros(hole.shape, bool)
     # Watershed (not a colour threshold): the stranger's own edges stop its growth, whatever its colours.
-    markers = np.where(alpha, 0, 3).astype(np.int32)
+    # Pixels the render does not cover are no marker: as one they flooded the stranger from every gap
+    # in the render (cuts at depth edges) and stopped its growth there.
+    markers = np.zeros(hole.shape, np.int32)
     markers[agree] = 2
     markers[seeded] = 1
     cv2.watershed(np.ascontiguousarray(render), markers)
@@ -432,7 +434,7 @@ def _cross_strangers(
             & alphas[i]
             & (cv2.blur(np.abs(images[i] - target).mean(axis=2), (k, k)) < sc.stranger_agreement)
         )
-        markers = np.where(alphas[i], 0, 3).astype(np.int32)
+        markers = np.zeros(hole.shape, np.int32)  # no marker where it does not cover, as in :func:`strangers`
         markers[fits] = 2
         markers[seeded] = 1
         cv2.watershed(np.ascontiguousarray(images[i].clip(0, 255).astype(np.uint8)), markers)
