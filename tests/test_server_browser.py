@@ -520,8 +520,10 @@ def test_result_view_divider_errors_and_small_windows_in_chromium(chromium, serv
         split = driver.find_element(By.ID, "split")
         start = int(split.get_attribute("value"))
         assert start <= 100 * 180 / W
-        # the canvas is scaled: against the fill's local mean (the default painter keeps texture)
-        assert np.abs(_pixel(driver, 240, 180) - result[178:183, 238:243].mean(axis=(0, 1))).mean() < 12
+        # the canvas is scaled: it shows the fill's pixel there, give or take a pixel of resampling
+        # (the default painter keeps texture, so a local mean is no stand-in for it)
+        near = np.abs(result[179:182, 239:242].astype(int) - _pixel(driver, 240, 180)).mean(axis=2)
+        assert near.min() < 8, near
         # at half-way: the photo (its magenta object) left, the result right
         _set_range(driver, split, 50)
         before, after = _pixel(driver, 225, 180), _pixel(driver, 255, 180)
