@@ -35,15 +35,22 @@ from benchmarks.common import MULTIVIEW
 from benchmarks.studies.fusion_variants import _renders, screened
 
 
-def classify(ctx, refs, hole, truth, objects) -> Counter:
-    """Counts of distinguishable pixels per class (see the module docstring), and ``n``."""
-    from geofill.evaluation.metrics import leak_masks
+def _fill(ctx, refs, hole, truth) -> tuple[list, object, np.ndarray]:
+    """``refs`` (refined renders) through the screen, fuse and composite stages: the usable
+    screened references, their fusion and the output (the truth outside the hole)."""
     from geofill.fuse import fuse_references
     from geofill.pipeline import composite
 
     refs = [r for r in screened(ctx, refs, ctx.cfg) if r.usable]
     fusion = fuse_references(ctx.target, hole, refs, ctx.cfg)
-    output = np.where(hole[..., None], composite(ctx, fusion), truth)
+    return refs, fusion, np.where(hole[..., None], composite(ctx, fusion), truth)
+
+
+def classify(ctx, refs, hole, truth, objects) -> Counter:
+    """Counts of distinguishable pixels per class (see the module docstring), and ``n``."""
+    from geofill.evaluation.metrics import leak_masks
+
+    refs, fusion, output = _fill(ctx, refs, hole, truth)
     leaked, distinguishable = leak_masks(output, truth, objects, hole)
     cover = np.zeros(hole.shape, int)
     strangers = np.zeros(hole.shape, int)
@@ -70,15 +77,6 @@ def classify(ctx, refs, hole, truth, objects) -> Counter:
             out[f"c{c}s{s}"] = int((chosen & (s_cover == c) & (s_strangers == s)).sum())
     out["other"] = out["leak"] - out["all"] - out["chosen"]
     return out
-
-
-def _fill(ctx, refs, hole, truth) -> np.ndarray:
-    """The fill of ``refs`` (refined renders) through the screen, fuse and composite stages."""
-    from geofill.fuse import fuse_references
-    from geofill.pipeline import composite
-
-    refs = [r for r in screened(ctx, refs, ctx.cfg) if r.usable]
-    return np.where(hole[..., None], composite(ctx, fuse_references(ctx.target, hole, refs, ctx.cfg)), truth)
 
 
 def oracle(ctx, refs, hole, truth, objects) -> list[tuple[float, float]]:
@@ -108,7 +106,7 @@ def oracle(ctx, refs, hole, truth, objects) -> list[tuple[float, float]]:
 
     scored = []
     for variant in (refs, without(stranger), without(lambda r: hole)):
-        image = _fill(ctx, variant, hole, truth)
+        image = _fill(ctx, variant, hole, truth)[2]
         scored.append((psnr(image, truth, hole), leak(image, truth, objects, hole).fraction or 0.0))
     return scored
 

@@ -248,8 +248,7 @@ def _run_local(tasks: Sequence[Task], out_dir: str, on_record: OnRecord, *, jobs
     """``jobs`` spawned worker processes, one item each at a time. A worker that dies (killed, out
     of memory) fails the items in flight, which ``--resume`` runs again; the pool is replaced."""
     pending = list(reversed(tasks))
-    running: dict[Future, Task] = {}
-    submitted: dict[Future, float] = {}  # wall-clock time (s) each item went to a worker
+    running: dict[Future, tuple[Task, float]] = {}  # and the wall-clock time (s) it went to a worker
     ctx = multiprocessing.get_context("spawn")  # fork would copy the parent's torch/OpenMP threads state
     with _environment(SINGLE_THREAD_ENV):
         pool = ProcessPoolExecutor(jobs, mp_context=ctx, initializer=init_worker)
@@ -257,13 +256,11 @@ def _run_local(tasks: Sequence[Task], out_dir: str, on_record: OnRecord, *, jobs
             while pending or running:
                 while pending and len(running) < jobs:
                     task = pending.pop()
-                    future = pool.submit(run_item, *task, out_dir)
-                    running[future], submitted[future] = task, time.time()
+                    running[pool.submit(run_item, *task, out_dir)] = task, time.time()
                 done, _ = wait(running, return_when=FIRST_COMPLETED)
                 broken = False
                 for future in done:
-                    item, cfg = running.pop(future)
-                    submitted.pop(future)
+                    (item, cfg), _ = running.pop(future)
                     try:
                         on_record(future.result())
                     except BrokenProcessPool:
@@ -276,12 +273,12 @@ def _run_local(tasks: Sequence[Task], out_dir: str, on_record: OnRecord, *, jobs
                     pool = ProcessPoolExecutor(jobs, mp_context=ctx, initializer=init_worker)
         except STOPPED:
             _terminate_workers(pool)
-            for future, (item, _) in running.items():
+            for future, ((item, _), since) in running.items():
                 # Items that finished while the signal came: their outputs are written, record them.
                 if future.done() and not future.cancelled() and future.exception() is None:
                     on_record(future.result())
                 elif item.output:
-                    _remove_unrecorded(Path(out_dir) / item.output, submitted[future])
+                    _remove_unrecorded(Path(out_dir) / item.output, since)
             raise
         pool.shutdown(wait=True)
 
