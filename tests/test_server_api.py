@@ -32,7 +32,7 @@ from PIL import ExifTags, Image
 from geofill.io import read_image
 from geofill.server.app import create_app
 from geofill.server.jobs import ServerSettings
-from geofill.server.schema import LOCKED_KEYS, config_fields, flatten
+from geofill.server.schema import config_fields, flatten, locked_keys
 from geofill.synthetic import blanked, make_pair
 
 W, H = 320, 240
@@ -400,7 +400,7 @@ def test_no_request_names_a_server_file_or_starts_a_download(idle, upload):
     client, _, _ = idle
     risky = [f.key for f in config_fields() if f.key.endswith(("_model", "_path", ".download"))]
     assert {"matching.learned_model", "matching.download", "depth.model_path"} <= set(risky)
-    assert set(risky) <= LOCKED_KEYS
+    assert set(risky) <= locked_keys()
     r = client.post("/api/v1/fill", files=files(upload), data={"config": '{"matching": {"download": true}}'})
     assert r.status_code == 422 and "matching.download" in r.json()["detail"]
 

@@ -15,7 +15,7 @@ import time
 import typing
 from pathlib import Path
 
-from .config import PRESETS, DepthConfig, FillConfig, choices, parse_overrides
+from .config import PRESETS, Cost, DepthConfig, FillConfig, choices, marked_keys, parse_overrides
 from .errors import EXIT_FELL_BACK, EXIT_ITEMS_FAILED, ConfigError, GeoFillError, Terminated
 from .progress import Progress
 
@@ -316,7 +316,10 @@ def cmd_serve(args: argparse.Namespace) -> int:
         max_request_bytes=int(args.max_upload_mb * 1024 * 1024) * (2 * args.max_sources + 2),
         max_pixels=args.max_pixels,
         max_sources=args.max_sources,
+        caps=_parse_caps(args.cap),
+        disk_cap_bytes=int(args.disk_cap_mb * 1024 * 1024),
     )
+    app = create_app(settings, cfg)  # before the message: a bad --cap is a one-line error
     url = f"http://{args.host}:{args.port}/"
     print(f"geofill: serving on {url} ({settings.workers} worker(s); Ctrl+C to stop)", file=sys.stderr)
     if args.open:
@@ -325,8 +328,23 @@ def cmd_serve(args: argparse.Namespace) -> int:
 
         threading.Timer(1.5, webbrowser.open, (url,)).start()
     # No websocket routes: "none" spares importing a websocket library where one is installed.
-    uvicorn.run(create_app(settings, cfg), host=args.host, port=args.port, log_level="warning", ws="none")
+    uvicorn.run(app, host=args.host, port=args.port, log_level="warning", ws="none")
     return 0
+
+
+def _parse_caps(items: list[str] | None) -> dict[str, object]:
+    """``--cap KEY=VALUE`` flags as {key: value}; the server checks keys and values."""
+    for item in items or []:
+        if "=" not in item:
+            raise ConfigError(f"--cap expects KEY=VALUE, got {item!r}")
+    return parse_overrides(items)
+
+
+_CAP_HELP = (
+    "the most a request may set a setting that scales a fill's cost to (repeatable); a request may "
+    "lower it, never raise it (422 naming the key and the cap). Default: the server's own config "
+    "value (--config/--set), which a lower cap lowers too. Keys: " + ", ".join(marked_keys(Cost))
+)
 
 
 class _Parser(argparse.ArgumentParser):
@@ -459,7 +477,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-upload-mb", type=float, default=50.0, help="largest uploaded file (MiB)")
     p.add_argument("--max-pixels", type=int, default=40_000_000, help="largest image (pixels)")
     p.add_argument("--max-sources", type=int, default=8, help="most reference photos per fill")
-    p.add_argument("--config", help="JSON config file: the defaults of every fill")
+    p.add_argument("--cap", action="append", metavar="KEY=VALUE", help=_CAP_HELP)
+    p.add_argument(
+        "--disk-cap-mb",
+        type=float,
+        default=2048.0,
+        metavar="MB",
+        help="disk space (MiB) of all jobs' files (uploads in flight counted at their largest); over it "
+        "the oldest finished jobs' results are deleted (their status says so, their result is 410), and "
+        "with none left a new upload is a 429 (default 2048)",
+    )
+    p.add_argument(
+        "--config", help="JSON config file: the defaults of every fill, and of the caps (see --cap)"
+    )
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a default config key")
     p.set_defaults(func=cmd_serve)
 

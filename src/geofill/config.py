@@ -84,6 +84,34 @@ class Length:
             )
 
 
+@dataclass(frozen=True)
+class Cost:
+    """Marks a numeric field whose larger values make a fill take longer or hold more memory (image
+    sizes, feature counts, iterations, levels, threads, time budgets): ``geofill serve`` caps it, and
+    a request may lower it but never raise it past the cap (a list: each item). ``zero_is_most``: 0
+    means no limit (every feature, the working size, one thread per core), the costliest value."""
+
+    zero_is_most: bool = False
+
+
+COSTLY = Cost()
+COSTLY_ZERO_MOST = Cost(zero_is_most=True)
+
+
+@dataclass(frozen=True)
+class ServerOnly:
+    """Marks a field that only whoever runs the fill may set, never a request to ``geofill serve``:
+    it names a file on the machine that runs the fill or lets the fill reach the network."""
+
+    why: str
+
+
+#: A file on the machine that runs the fill (a model, a depth map): never set by a request.
+LocalPath = Annotated[str, ServerOnly("names a file on the server's machine")]
+#: A switch that lets a fill download: never set by a request.
+DownloadSwitch = Annotated[bool, ServerOnly("lets the fill download from the network")]
+
+
 def setting(default: Any, help: str) -> Any:
     """A config field: its default and its description, kept as ``metadata["help"]`` (the web page,
     the OpenAPI schema and the tests read it there). A list default is copied for each instance."""
@@ -162,7 +190,7 @@ class IntrinsicsConfig:
     )
     search_min_scale: Annotated[float, Range(0.01, 1)] = setting(0.33, _FOCAL_SEARCH_GRID)
     search_max_scale: Annotated[float, Range(1, 100)] = setting(3.0, _FOCAL_SEARCH_GRID)
-    search_steps: Annotated[int, Range(2, 200)] = setting(13, _FOCAL_SEARCH_GRID)
+    search_steps: Annotated[int, Range(2, 200), COSTLY] = setting(13, _FOCAL_SEARCH_GRID)
     search_variance_inflation: Annotated[float, Range(1, 1e6)] = setting(
         25.0,
         "The search reads its Sampson cost as a Gaussian likelihood of the focal with the information "
@@ -175,7 +203,7 @@ class IntrinsicsConfig:
         "principal point or a rolling shutter leave. Estimates on the GT pairs were 0-16 % off where more "
         "than 70 matches (benchmarks/studies/focal_bench.py).",
     )
-    search_max_matches: Annotated[int, Range(8, 100_000)] = setting(
+    search_max_matches: Annotated[int, Range(8, 100_000), COSTLY] = setting(
         2000,
         "Matches used by the search at most (evenly subsampled, for speed).",
     )
@@ -186,7 +214,7 @@ class IntrinsicsConfig:
         "A pair whose best focal is further than this many standard deviations from the prior contradicts "
         "it: the prior is kept (an EXIF focal wins over an estimate it rules out).",
     )
-    bougnoux_resamples: Annotated[int, Range(1, 1000)] = setting(
+    bougnoux_resamples: Annotated[int, Range(1, 1000), COSTLY] = setting(
         32,
         "``bougnoux``: bootstrap resamples of the matches that measure the formula's sensitivity.",
     )
@@ -221,12 +249,12 @@ _GUIDED_RUNG = (
 class MatchingConfig:
     """SIFT matching between target and source (hole excluded)."""
 
-    max_features: Annotated[int, Range(0, 1_000_000)] = setting(
+    max_features: Annotated[int, Range(0, 1_000_000), COSTLY_ZERO_MOST] = setting(
         4000,
         "SIFT keypoints per image (strongest kept); 0 = no limit. 4000 gave the same pose accuracy as 8000 "
         "on the GT-pose pairs (median 0.18 deg / 0.95 deg) at half the matching time.",
     )
-    sift_max_side: Annotated[int, Range(0, 16384)] = setting(
+    sift_max_side: Annotated[int, Range(0, 16384), COSTLY_ZERO_MOST] = setting(
         0,
         "The ``sift`` rung detects on the working images downsized to this long side (px; 0 = the working "
         "size itself); positions are mapped back to working pixels.",
@@ -244,7 +272,7 @@ class MatchingConfig:
     )
     ransac_threshold_px: Annotated[float, Range(1e-3, 100.0)] = setting(1.0, _RANSAC)
     ransac_confidence: Annotated[float, Range(0.0, 1.0)] = setting(0.9999, _RANSAC)
-    ransac_max_iters: Annotated[int, Range(1, 1_000_000)] = setting(10000, _RANSAC)
+    ransac_max_iters: Annotated[int, Range(1, 1_000_000), COSTLY] = setting(10000, _RANSAC)
     max_rung: Literal["sift", "learned", "loose", "asift", "guided"] = setting(
         "guided",
         "The escalation ladder (:mod:`geofill.match.ladder`) climbs at most to this rung: ``sift`` -> "
@@ -252,7 +280,7 @@ class MatchingConfig:
         "stricter verification) -> ``asift`` (affine-simulated SIFT) -> ``guided`` (matching along the "
         "epipolar lines of the best F so far). ``sift`` is plain SIFT matching alone.",
     )
-    time_budget_s: Annotated[float, Range(0.0, 86_400.0)] = setting(
+    time_budget_s: Annotated[float, Range(0.0, 86_400.0), COSTLY] = setting(
         30.0,
         "The ladder starts no new rung after this many seconds (ASIFT also stops between its simulated "
         "views). 30 s: room for SIFT, the loose rung and most of ASIFT's views at the working size on 2 "
@@ -269,12 +297,12 @@ class MatchingConfig:
         "Inlier threshold of the rungs above ``sift``, as a multiple of ``ransac_threshold_px``: looser "
         "matching lets more outliers in, so their geometry is verified more strictly.",
     )
-    loose_max_features: Annotated[int, Range(0, 1_000_000)] = setting(8000, _LOOSE_RUNG)
+    loose_max_features: Annotated[int, Range(0, 1_000_000), COSTLY_ZERO_MOST] = setting(8000, _LOOSE_RUNG)
     loose_ratio: Annotated[float, Range(0.0, 1.0)] = setting(0.9, _LOOSE_RUNG)
-    asift_max_tilt: Annotated[int, Range(1, 8)] = setting(4, _ASIFT_RUNG)
-    asift_max_side: Annotated[int, Range(64, 8192)] = setting(800, _ASIFT_RUNG)
-    asift_features_per_view: Annotated[int, Range(1, 100_000)] = setting(1000, _ASIFT_RUNG)
-    asift_max_features: Annotated[int, Range(1, 100_000)] = setting(8000, _ASIFT_RUNG)
+    asift_max_tilt: Annotated[int, Range(1, 8), COSTLY] = setting(4, _ASIFT_RUNG)
+    asift_max_side: Annotated[int, Range(64, 8192), COSTLY] = setting(800, _ASIFT_RUNG)
+    asift_features_per_view: Annotated[int, Range(1, 100_000), COSTLY] = setting(1000, _ASIFT_RUNG)
+    asift_max_features: Annotated[int, Range(1, 100_000), COSTLY] = setting(8000, _ASIFT_RUNG)
     asift_ratio: Annotated[float, Range(0.0, 1.0)] = setting(0.85, _ASIFT_RUNG)
     guided_band_px: Annotated[float, Range(0.1, 100.0)] = setting(3.0, _GUIDED_RUNG)
     guided_ratio: Annotated[float, Range(0.0, 1.0)] = setting(0.8, _GUIDED_RUNG)
@@ -304,7 +332,7 @@ class MatchingConfig:
         "on the 23 DEV pairs with the hole blanked: 0.49 on the fox's wallpaper pair (55.8 deg pose error), "
         "0.84-1.00 on the 21 others where SIFT verifies.",
     )
-    learned_recheck_max_keypoints: Annotated[int, Range(16, 100_000)] = setting(
+    learned_recheck_max_keypoints: Annotated[int, Range(16, 100_000), COSTLY] = setting(
         4096,
         "``xfeat-lighterglue``: XFeat keypoints per image when the learned rung re-checks a suspicious SIFT "
         "geometry. On the fox pair in a fill (hole blanked) 2048 did not recover the geometry even with the "
@@ -319,13 +347,13 @@ class MatchingConfig:
         "end-to-end keypoint + matcher ONNX graph such as the SuperPoint + LightGlue pipeline export "
         "(:mod:`geofill.match.learned`; ``learned_model`` selects it too).",
     )
-    learned_max_keypoints: Annotated[int, Range(16, 100_000)] = setting(
+    learned_max_keypoints: Annotated[int, Range(16, 100_000), COSTLY] = setting(
         2048,
         "``xfeat-lighterglue``: XFeat keypoints per image (the strongest). 1024 lost the fox pair's geometry "
         "(49 deg rotation error with the true K, hole not blanked; 2048: 1.2 deg); LighterGlue's cost grows "
         "with their product.",
     )
-    learned_threads: Annotated[int, Range(0, 256)] = setting(
+    learned_threads: Annotated[int, Range(0, 256), COSTLY_ZERO_MOST] = setting(
         1,
         "``xfeat-lighterglue``: torch threads the learned matcher runs with (0: torch's default, one per "
         "core). One: on a 2-core machine shared with other processes, two threads that wait for each "
@@ -340,12 +368,12 @@ class MatchingConfig:
         "verified matches move the fox's focal estimate from the prior to x0.78 in a fill (rotation 9.9 -> "
         "20 deg), so 0.95 stays.",
     )
-    learned_model: str | None = setting(
+    learned_model: LocalPath | None = setting(
         None,
         "Explicit matcher ONNX file (``learned_matcher = onnx``); wins over the environment variable and the "
         "cache (implies ``on`` and ``onnx``).",
     )
-    learned_max_side: Annotated[int, Range(64, 8192)] = setting(
+    learned_max_side: Annotated[int, Range(64, 8192), COSTLY] = setting(
         1024,
         "Long side (px) both images are resized to (at most) for the learned matcher.",
     )
@@ -356,7 +384,7 @@ class MatchingConfig:
         "never). Measured on the DEV pairs: 0-11 verified SIFT matches between 16 pairs of different "
         "scenes, at least 20 in every true pair.",
     )
-    download: bool = setting(
+    download: DownloadSwitch = setting(
         False,
         "Allow downloading the matcher during a fill (``HF_HUB_OFFLINE=1`` forbids it too). Off by default: "
         "a fill never reaches for the network; ``geofill models download`` does.",
@@ -414,17 +442,17 @@ class DepthConfig:
         "``onnx``/``fused``: which network (Depth Anything V2 Small is Apache-2.0; DPT-Hybrid is the "
         "paper's; MiDaS v2.1 small is the fastest).",
     )
-    model_path: str | None = setting(
+    model_path: LocalPath | None = setting(
         None,
         "``onnx``/``fused``: explicit ONNX file of ``model``; wins over its environment variable, the cache "
         "and the hub (CLI ``--depth-model``).",
     )
-    download: bool = setting(
+    download: DownloadSwitch = setting(
         False,
         "Allow downloading missing weights from the hub during a fill (``HF_HUB_OFFLINE=1`` forbids it "
         "too). Off by default: a fill never reaches for the network; ``geofill models download`` does.",
     )
-    file_path: str | None = setting(
+    file_path: LocalPath | None = setting(
         None,
         "``file`` backend: path of a .npy / 16-bit PNG / TIFF / EXR map the size of the source.",
     )
@@ -440,20 +468,20 @@ class DepthConfig:
         False,
         "``file`` backend: True when the map is metric (pose translation gets its scale from it).",
     )
-    sparse_max_side: Annotated[int, Range(16, 8192)] = setting(
+    sparse_max_side: Annotated[int, Range(16, 8192), COSTLY] = setting(
         640,
         "``sparse`` backend: working long side (px) of the edge-aware interpolation.",
     )
-    stereo_max_side: Annotated[int, Range(32, 4096)] = setting(
+    stereo_max_side: Annotated[int, Range(32, 4096), COSTLY] = setting(
         448,
         "``stereo``: long side (px) of the plane sweep and of its completion.",
     )
-    stereo_max_planes: Annotated[int, Range(2, 1024)] = setting(
+    stereo_max_planes: Annotated[int, Range(2, 1024), COSTLY] = setting(
         96,
         "``stereo``: most depth hypotheses (planes uniform in inverse depth); fewer are used when the "
         "sweep's displacement range is shorter (about one plane per pixel of displacement).",
     )
-    stereo_patch_px: Annotated[int, Range(3, 63)] = setting(
+    stereo_patch_px: Annotated[int, Range(3, 63), COSTLY] = setting(
         7,
         "``stereo``: side (px at the sweep's resolution) of the NCC window.",
     )
@@ -513,7 +541,7 @@ class OptimizeConfig:
         192.0,
         "sigma of the hole-distance weight W_h = exp(-d^2 / 2 sigma^2) (paper: 192 px at 1280x720).",
     )
-    edge_blur_kernels: Annotated[list[Annotated[int, Range(1, 255)]], Length(1, 16)] = setting(
+    edge_blur_kernels: Annotated[list[Annotated[int, Range(1, 255)]], Length(1, 16), COSTLY] = setting(
         [3, 7, 15, 31],
         "Gaussian blur kernel sizes before each of the Canny edge maps of W_e (the paper uses 4 maps and "
         "gives no sizes; odd after scaling).",
@@ -526,11 +554,11 @@ class OptimizeConfig:
     )
     barron_alpha: Annotated[float, Range(-1000, 2)] = setting(-2.0, _BARRON_LOSS)
     barron_c_px: Annotated[float, Range(0, 1e4, lo_open=True)] = setting(10.0, _BARRON_LOSS)
-    pyramid_levels: Annotated[int, Range(1, 8)] = setting(
+    pyramid_levels: Annotated[int, Range(1, 8), COSTLY] = setting(
         4,
         "Gaussian pyramid levels, optimised coarse to fine (paper: 4).",
     )
-    max_side: Annotated[int, Range(32, 16384)] = setting(
+    max_side: Annotated[int, Range(32, 16384), COSTLY] = setting(
         640,
         "Long side (px) of the finest level; the working images are downsized to it when larger. The paper "
         "optimises at 1280 px; 640 gave the same mean hole PSNR on the 23 DEV pairs (19.06 dB, no pair "
@@ -541,7 +569,7 @@ class OptimizeConfig:
         "``paper`` solver: DiffGrad's constant learning rate (paper: 1e-2).",
     )
     paper_iterations: Annotated[
-        list[Annotated[int, Range(0, 1_000_000)]], Length(1, 8, min_of="pyramid_levels")
+        list[Annotated[int, Range(0, 1_000_000)]], Length(1, 8, min_of="pyramid_levels"), COSTLY
     ] = setting(
         [4000, 7000, 9000, 10000],
         "``paper`` solver: cumulative iteration limits per level, coarse to fine (paper: 4k, 7k, 9k, 10k).",
@@ -549,7 +577,7 @@ class OptimizeConfig:
     paper_eps: Annotated[float, Range(0, 1)] = setting(1e-6, _PAPER_CONVERGENCE)
     paper_window: Annotated[int, Range(1, 100_000)] = setting(10, _PAPER_CONVERGENCE)
     fast_iterations: Annotated[
-        list[Annotated[int, Range(0, 10_000)]], Length(1, 8, min_of="pyramid_levels")
+        list[Annotated[int, Range(0, 10_000)]], Length(1, 8, min_of="pyramid_levels"), COSTLY
     ] = setting(
         [30, 20, 12, 4],
         "``fast`` solver: Levenberg-Marquardt iterations per level, coarse to fine. The finest level starts "
@@ -576,7 +604,7 @@ class OptimizeConfig:
         1,
         "``fast`` solver: margin (px at each level) around the weighted area kept in that set.",
     )
-    threads: Annotated[int, Range(1, 256)] = setting(
+    threads: Annotated[int, Range(1, 256), COSTLY] = setting(
         1,
         "BLAS (and, for the paper solver, torch) threads while optimising (restored afterwards). The work "
         "is many small memory-bound operations: 2 torch threads were 13x slower than 1 with the 2 cores "
@@ -634,7 +662,7 @@ class RefineConfig:
         32.0,
         "Width (px) of the known ring around the hole that refinement measures on.",
     )
-    max_side: Annotated[int, Range(32, 16384)] = setting(
+    max_side: Annotated[int, Range(32, 16384), COSTLY] = setting(
         640,
         "Long side (px) of the image-equivalent resolution at which flow and colour fields are estimated; "
         "they are applied at the input resolution. 640 (was 1280): over 3 mask seeds x 23 DEV pairs the "
@@ -677,11 +705,11 @@ class InpaintConfig:
         '"patchmatch" extra); "lama": LaMa through ONNX Runtime; "auto": LaMa when its model resolves '
         "(path, $GEOFILL_LAMA_MODEL, cache, hub), else exemplar (the reason is reported).",
     )
-    radius_px: Annotated[float, Range(0, 100, lo_open=True)] = setting(
+    radius_px: Annotated[float, Range(0, 100, lo_open=True), COSTLY] = setting(
         5.0,
         "OpenCV inpainting neighbourhood radius (px).",
     )
-    patch_radius_px: Annotated[int, Range(1, 15)] = setting(
+    patch_radius_px: Annotated[int, Range(1, 15), COSTLY] = setting(
         3,
         '"exemplar"/"patchmatch": radius (px) of the compared patches, (2r + 1)^2 pixels (PyPatchMatch\'s '
         "examples use 3; larger follows larger structures, much slower).",
@@ -692,12 +720,12 @@ class InpaintConfig:
         "Telea's diffusion (large-scale structure from diffusion, texture from exemplars); 0: exemplars only "
         "(most texture, lower hole PSNR; measured in docs/architecture.md).",
     )
-    lama_model: str | None = setting(
+    lama_model: LocalPath | None = setting(
         None,
         "Explicit LaMa ONNX file (e.g. Carve/LaMa-ONNX's lama.onnx); wins over the environment variable, "
         "the cache and the hub.",
     )
-    download: bool = setting(
+    download: DownloadSwitch = setting(
         False,
         "Allow downloading the LaMa model from the hub (``HF_HUB_OFFLINE=1`` forbids it too). Off by "
         "default: no checksum is published for it, so a 207 MB unverifiable download is opt-in.",
@@ -817,7 +845,7 @@ class FusionConfig:
         "mean absolute difference, 0-255, over a 5-px box; score within ``candidate_ratio``; surfaces within "
         "``depth_agreement`` with ``geometry``) are averaged with it. 0: the winner alone.",
     )
-    parallel: Annotated[int, Range(1, 64)] = setting(
+    parallel: Annotated[int, Range(1, 64), COSTLY] = setting(
         2,
         "References processed at once (threads); 1 runs them one after the other. 2 on 2 cores: three "
         "1280x720 references 10.7 -> 8.2 s, two 8.0 -> 5.5 s (benchmarks/speed/multiref.py).",
@@ -854,12 +882,12 @@ class RegistrationConfig:
         "(seeds 0-2; 21.07 against 21.10 on seeds 3-5), static object removal 20.09 against 20.34 dB, "
         "strangers 17.69 against 17.90 dB (leak 0.122 against 0.116).",
     )
-    max_features: Annotated[int, Range(256, 65536)] = setting(
+    max_features: Annotated[int, Range(256, 65536), COSTLY] = setting(
         2048,
         "SIFT features per image for the joint registration with ``features=colmap`` (COLMAP's own "
         "detector on the images of ``max_side``, from the upsampled octave only under 480 px).",
     )
-    max_side: Annotated[int, Range(0, 16384)] = setting(
+    max_side: Annotated[int, Range(0, 16384), COSTLY_ZERO_MOST] = setting(
         800,
         "Long side (px) of the images COLMAP sees with ``features=colmap``, at most the working size (0: "
         "the working size). "
@@ -887,15 +915,15 @@ class MultiViewConfig:
         "plane sweep against the other references and the target; off: that depth stays completed from "
         "the surroundings.",
     )
-    max_side: Annotated[int, Range(32, 4096)] = setting(
+    max_side: Annotated[int, Range(32, 4096), COSTLY] = setting(
         448,
         "Long side (px) of the sweep.",
     )
-    max_planes: Annotated[int, Range(2, 1024)] = setting(
+    max_planes: Annotated[int, Range(2, 1024), COSTLY] = setting(
         96,
         "Most depth hypotheses (uniform in inverse depth); fewer when the matches move less (one per px).",
     )
-    best_k: Annotated[int, Range(1, 16)] = setting(
+    best_k: Annotated[int, Range(1, 16), COSTLY] = setting(
         1,
         "Occlusion handling: each hypothesis scores the mean NCC of this many best views (a view that "
         "does not see the point scores low and is left out).",
@@ -904,7 +932,7 @@ class MultiViewConfig:
         True,
         "Score against the target too (outside its hole) besides the other references.",
     )
-    patch_px: Annotated[int, Range(3, 63)] = setting(
+    patch_px: Annotated[int, Range(3, 63), COSTLY] = setting(
         7, "Side (px at the sweep's resolution) of the NCC window."
     )
     aggregation_radius: Annotated[int, Range(0, 64)] = setting(
@@ -1041,12 +1069,12 @@ class FillConfig:
     screen: ScreenConfig = field(default_factory=ScreenConfig)
     multiview: MultiViewConfig = field(default_factory=MultiViewConfig)
     registration: RegistrationConfig = field(default_factory=RegistrationConfig)
-    working_max_side: Annotated[int, Range(64, 16384)] = setting(
+    working_max_side: Annotated[int, Range(64, 16384), COSTLY] = setting(
         1280,
         "Geometry (matching, pose, depth, optimisation) runs with the long side capped at this (px); "
         "rendering and compositing run at the input resolution.",
     )
-    max_pixels: Annotated[int, Range(4096, 1_000_000_000)] = setting(
+    max_pixels: Annotated[int, Range(4096, 1_000_000_000), ServerOnly("the server's upload limit")] = setting(
         60_000_000,
         "Inputs with more pixels than this are refused (decompression-bomb guard).",
     )
@@ -1058,7 +1086,7 @@ class FillConfig:
         64,
         "Images with a side under this (px) are refused.",
     )
-    time_budget_s: Annotated[float, Range(1, 1e6)] = setting(
+    time_budget_s: Annotated[float, Range(1, 1e6), COSTLY] = setting(
         7200.0,
         "Wall-clock budget (s) of one whole fill, checked as each stage starts (geofill.progress); "
         "generous: the paper solver alone can take an hour on a CPU.",
@@ -1196,7 +1224,7 @@ def _coerce(tp: Any, value: Any, where: str, siblings: dict[str, Any] | None = N
         for bound in tp.__metadata__:
             if isinstance(bound, Length):
                 bound.check(value, where, siblings or {})
-            else:
+            elif isinstance(bound, Range):
                 bound.check(value, where)
         return value
     if origin is Literal:
@@ -1241,6 +1269,28 @@ def _coerce(tp: Any, value: Any, where: str, siblings: dict[str, Any] | None = N
             raise ConfigError(f"{where}: expected a string, got {_show(value)}")
         return value
     return value
+
+
+def marked_keys(marker: type) -> dict[str, Any]:
+    """Dotted key -> the ``marker`` instance (:class:`Cost`, :class:`ServerOnly`) of every field of
+    :class:`FillConfig` whose type carries one, an optional field's included."""
+    out: dict[str, Any] = {}
+
+    def walk(cls: type, prefix: str) -> None:
+        hints = typing.get_type_hints(cls, include_extras=True)
+        for f in dataclasses.fields(cls):
+            tp = hints[f.name]
+            if dataclasses.is_dataclass(tp):
+                walk(tp, f"{prefix}{f.name}.")
+                continue
+            if typing.get_origin(tp) in (typing.Union, types.UnionType):
+                tp = next(a for a in typing.get_args(tp) if a is not type(None))
+            found = [m for m in getattr(tp, "__metadata__", ()) if isinstance(m, marker)]
+            if found:
+                out[f"{prefix}{f.name}"] = found[0]
+
+    walk(FillConfig, "")
+    return out
 
 
 def parse_overrides(items: list[str] | None) -> dict[str, Any]:

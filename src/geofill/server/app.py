@@ -29,10 +29,12 @@ from ..progress import STAGE_WORDS
 from .jobs import JobManager, QueueFullError, ServerSettings
 from .schema import (
     COMMON_KEYS,
-    LOCKED_KEYS,
     apply_request_config,
     config_fields,
     config_sections,
+    locked_keys,
+    server_caps,
+    value_at,
     with_config_schema,
 )
 from .uploads import SOURCE_MASK_FIELD, UploadError, receive_fill_form
@@ -76,6 +78,7 @@ _NO_SUCH_JOB: dict[str, Any] = {"description": "no such job (never created, expi
 _JOB_FILE_ERRORS: dict[int | str, dict[str, Any]] = {
     404: _NO_SUCH_JOB,
     409: {"description": "the job has no result (queued, running, failed or cancelled)"},
+    410: {"description": "the job's files were deleted to keep the server under its disk cap"},
 }
 
 
@@ -144,9 +147,11 @@ def create_app(
     clock: Callable[[], float] = time.monotonic,
 ) -> FastAPI:
     """The application; its lifespan owns the temporary folder and the worker pool (``app.state.jobs``
-    while it runs). ``clock`` (seconds) dates jobs for their expiry."""
+    while it runs). ``clock`` (seconds) dates jobs for their expiry. ConfigError when a cap of
+    ``settings.caps`` is not a cost key or not a number."""
     settings = settings or ServerSettings()
     base = (base_config or FillConfig()).updated({"max_pixels": settings.max_pixels})
+    base, caps = server_caps(base, settings.caps)
     state: dict[str, Any] = {}
 
     @asynccontextmanager
@@ -196,33 +201,34 @@ def create_app(
     @app.get("/api/v1/config/fields", summary="The fill config as a flat list of fields (for forms)")
     async def get_fields() -> dict[str, Any]:
         """Each key with its kind, default, bounds (``range``: a number's, or each list item's;
-        ``length``: a list's item count), choices and description; ``sections`` describes each
-        section in pipeline order; ``common`` lists the keys a form offers first."""
+        ``length``: a list's item count), this server's ``cap`` of a cost key (the most a request
+        may set; ``zero_is_most``: 0 means no limit, over any cap but 0), choices and description;
+        ``sections`` describes each section in pipeline order; ``common`` lists the keys a form
+        offers first."""
         defaults = base.to_dict()
         rows = []
         for f in config_fields():
-            node: Any = defaults
-            for part in f.key.split("."):
-                node = node[part]
             rows.append(
                 {
                     "key": f.key,
                     "section": f.section,
                     "kind": f.kind,
-                    "default": node,
+                    "default": value_at(defaults, f.key),
                     "optional": f.optional,
                     "choices": list(f.choices),
                     "description": f.description,
                     "locked": f.locked,
                     "range": dataclasses.asdict(f.range) if f.range else None,
                     "length": [f.length.lo, f.length.hi] if f.length else None,
+                    "cap": caps.get(f.key),
+                    "zero_is_most": bool(f.cost and f.cost.zero_is_most),
                 }
             )
         return {
             "fields": rows,
             "sections": [{"key": k, "description": d} for k, d in config_sections()],
             "common": list(COMMON_KEYS),
-            "locked": sorted(LOCKED_KEYS),
+            "locked": sorted(locked_keys()),
         }
 
     @app.get("/api/v1/limits", summary="Upload and queue limits of this server")
@@ -235,6 +241,8 @@ def create_app(
             "queue_size": settings.queue_size,
             "workers": settings.workers,
             "job_ttl_s": settings.job_ttl_s,
+            "disk_cap_bytes": settings.disk_cap_bytes,
+            "caps": caps,
             "stages": STAGE_WORDS,
         }
 
@@ -248,8 +256,8 @@ def create_app(
             400: {"description": "malformed request or input images"},
             413: {"description": "an upload over a byte or pixel limit (named)"},
             415: {"description": "the body is not multipart/form-data"},
-            422: {"description": "bad config (the key is named)"},
-            429: {"description": "the queue is full; see Retry-After"},
+            422: {"description": "bad config, or a cost over this server's cap (the key and cap are named)"},
+            429: {"description": "the queue or the server's disk space for jobs is full; see Retry-After"},
         },
     )
     async def post_fill(request: Request) -> JSONResponse:
@@ -258,11 +266,15 @@ def create_app(
         optional ``config`` JSON; the fill runs in the background. Poll ``GET /api/v1/jobs/{id}``."""
         jobs = manager()
         busy = {"Retry-After": str(RETRY_AFTER_S)}
-        if not jobs.has_room():
-            return _error(429, "the queue is full; try again later", busy)
         length = request.headers.get("content-length")
         if length is not None and (not length.isdigit() or int(length) > settings.max_request_bytes):
             return _error(413, f"the request is larger than the limit of {settings.max_request_bytes} bytes")
+        # The place is held before a byte is stored or decoded, so that at most queue_size
+        # requests are ever being read at once; it is given back on every error below.
+        try:
+            place = jobs.reserve()
+        except QueueFullError as exc:
+            return _error(429, f"{exc}; try again later", busy)
         folder = jobs.new_folder()
         try:
             form = await receive_fill_form(
@@ -277,9 +289,9 @@ def create_app(
                 overrides = json.loads(form.config_text) if form.config_text else {}
             except json.JSONDecodeError as exc:
                 raise UploadError(422, f"config: not valid JSON ({exc})") from exc
-            cfg = apply_request_config(base, overrides)
+            cfg = apply_request_config(base, overrides, caps)
             await run_in_threadpool(_validate_inputs, folder, form.files, cfg, settings.max_pixels)
-            job = jobs.submit(folder, form.n_sources, cfg.to_dict(), tuple(sorted(form.source_masks)))
+            job = place.submit(folder, form.n_sources, cfg.to_dict(), tuple(sorted(form.source_masks)))
         except UploadError as exc:
             shutil.rmtree(folder, ignore_errors=True)
             return _error(exc.status, str(exc))
@@ -292,12 +304,14 @@ def create_app(
         except GeoFillError as exc:
             shutil.rmtree(folder, ignore_errors=True)
             return _error(400, _field_names(str(exc), folder))
-        except QueueFullError:
+        except QueueFullError as exc:
             shutil.rmtree(folder, ignore_errors=True)
-            return _error(429, "the queue is full; try again later", busy)
+            return _error(429, f"{exc}; try again later", busy)
         except ClientDisconnect:
             shutil.rmtree(folder, ignore_errors=True)
             return _error(400, "the client went away during the upload")
+        finally:
+            place.release()
         return JSONResponse(
             {"id": job.id, "state": job.state, "url": f"/api/v1/jobs/{job.id}"},
             status_code=202,
@@ -322,6 +336,8 @@ def create_app(
             return _unknown()
         if job.state != "done":
             return _error(409, f"the job is {job.state}, it has no result")
+        if job.evicted:
+            return _error(410, f"this job's result is gone: {job.evicted}")
         path = job.folder / name
         if not path.is_file():  # expired between the lookup and now
             return _unknown()

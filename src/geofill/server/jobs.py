@@ -14,17 +14,21 @@ import shutil
 import threading
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from multiprocessing.connection import wait
 from pathlib import Path
 from typing import Any
 
 from ..progress import STAGE_WORDS
-from .worker import JobSpec, worker_main
+from .worker import COVERAGE_FILE, RESULT_FILE, JobSpec, worker_main
 
 #: Stage messages and notes kept per job (a runaway pipeline cannot grow a job without bound).
 MAX_NOTES = 200
+#: The files a finished job keeps (the client may still download them); its uploads are deleted.
+KEPT_FILES = frozenset({RESULT_FILE, COVERAGE_FILE})
+#: Why a request is refused when finished jobs' files cannot make room.
+DISK_FULL = "the server's disk space for jobs is full"
 #: How often (s) a slot checks for Cancel while its worker is busy (messages wake it at once).
 POLL_S = 0.2
 #: A slot starts its worker process this long after the server starts, or when the first job comes
@@ -51,10 +55,18 @@ class ServerSettings:
     max_pixels: int = 40_000_000  # per image (target, mask, each reference)
     max_sources: int = 8
     temp_parent: str | None = None  # where the server's own temporary folder is made (None: system's)
+    # The most a request may set each cost key to (``geofill serve --cap``); a key not here is capped
+    # at the server's config value (:func:`geofill.server.schema.server_caps`).
+    caps: Mapping[str, float] = field(default_factory=dict)
+    # Files of all jobs together: over it, the oldest finished jobs' results are deleted; with none
+    # left to delete, a new request is a 429. (Uploads still arriving are bounded apart from it, by
+    # queue_size x max_request_bytes.)
+    disk_cap_bytes: int = 2 * 1024**3
 
 
 class QueueFullError(Exception):
-    """The queue holds ``queue_size`` jobs already."""
+    """The queue holds ``queue_size`` jobs (or reserved places) already, or the disk cap is reached
+    by jobs that are not finished."""
 
 
 @dataclass
@@ -75,6 +87,8 @@ class Job:
     error_kind: str | None = None
     finished: float | None = None
     cancel: threading.Event = field(default_factory=threading.Event)
+    disk_bytes: int = 0  # of the files in its folder
+    evicted: str | None = None  # why its files were deleted before it expired
 
     def public(self) -> dict[str, Any]:
         """The job as ``GET /api/v1/jobs/{id}`` shows it."""
@@ -89,10 +103,38 @@ class Job:
             "notes": list(self.notes),
             "error": self.error,
             "error_kind": self.error_kind,
+            "evicted": self.evicted,
         }
         if self.summary is not None:
             out.update(self.summary)
         return out
+
+
+def _folder_bytes(folder: Path) -> int:
+    return sum(p.stat().st_size for p in folder.iterdir()) if folder.is_dir() else 0
+
+
+class Place:
+    """A queue place held for one request (:meth:`JobManager.reserve`): :meth:`submit` turns it into
+    a job; :meth:`release` (a no-op after submit) gives it back on any error."""
+
+    def __init__(self, manager: JobManager) -> None:
+        self._manager: JobManager | None = manager
+
+    def submit(
+        self, folder: Path, n_sources: int, config: dict[str, Any], source_masks: tuple[int, ...] = ()
+    ) -> Job:
+        """Queue a job whose inputs are in ``folder`` (moved into the job's own folder);
+        ``source_masks``: the references (1-based) whose mask was uploaded."""
+        assert self._manager is not None, "this place was used already"
+        job = self._manager._submit(folder, n_sources, config, source_masks)
+        self._manager = None
+        return job
+
+    def release(self) -> None:
+        if self._manager is not None:
+            self._manager._unreserve()
+            self._manager = None
 
 
 class _Worker:
@@ -139,6 +181,7 @@ class JobManager:
         self._ctx = multiprocessing.get_context("spawn")  # fork would copy the server's threads
         self._threads: list[threading.Thread] = []
         self._workers: dict[str, _Worker] = {}  # slot thread name -> its current worker
+        self._reserved = 0  # queue places held by requests still uploading
 
     # ---- lifecycle
 
@@ -173,25 +216,40 @@ class JobManager:
         folder.mkdir()
         return folder
 
-    def has_room(self) -> bool:
+    def reserve(self) -> Place:
+        """Hold a queue place before the request's body is read: its uploads are stored and decoded
+        only once the place is held. QueueFullError when the queue (with the places held) is full,
+        or the disk cap is reached with no finished job's files left to delete."""
         with self._cv:
-            return len(self._queue) < self.settings.queue_size
+            if self._stopping or len(self._queue) + self._reserved >= self.settings.queue_size:
+                raise QueueFullError("the queue is full")
+            if not self._make_room():
+                raise QueueFullError(DISK_FULL)
+            self._reserved += 1
+            return Place(self)
 
-    def submit(
-        self, folder: Path, n_sources: int, config: dict[str, Any], source_masks: tuple[int, ...] = ()
-    ) -> Job:
-        """Queue a job whose inputs are in ``folder`` (moved into the job's own folder);
-        ``source_masks``: the references (1-based) whose mask was uploaded."""
+    def _unreserve(self) -> None:
         with self._cv:
-            if len(self._queue) >= self.settings.queue_size or self._stopping:
-                raise QueueFullError(f"{len(self._queue)} jobs are waiting already")
+            self._reserved -= 1
+
+    def _submit(
+        self, folder: Path, n_sources: int, config: dict[str, Any], source_masks: tuple[int, ...]
+    ) -> Job:
+        with self._cv:
+            if self._stopping:
+                raise QueueFullError("the server is stopping")
             job_id = secrets.token_urlsafe(24)  # 192 random bits: not guessable
             job_folder = self.root / job_id
             folder.rename(job_folder)
             spec = JobSpec(str(job_folder), n_sources, config, source_masks)
-            job = Job(job_id, job_folder, spec, self.clock())
+            job = Job(job_id, job_folder, spec, self.clock(), disk_bytes=_folder_bytes(job_folder))
             self._jobs[job_id] = job
+            if not self._make_room():
+                del self._jobs[job_id]
+                job_folder.rename(folder)  # the caller deletes it
+                raise QueueFullError(DISK_FULL)
             self._queue.append(job)
+            self._reserved -= 1
             self._cv.notify_all()
             return job
 
@@ -233,6 +291,11 @@ class JobManager:
                 self._delete(job)
             return len(old)
 
+    def disk_bytes(self) -> int:
+        """Bytes of every job's files (as the disk cap counts them)."""
+        with self._cv:
+            return sum(j.disk_bytes for j in self._jobs.values())
+
     def worker_pids(self) -> list[int]:
         """Process ids of the worker processes alive now."""
         with self._cv:
@@ -249,7 +312,32 @@ class JobManager:
 
     def _finish(self, job: Job, state: str, error: str | None = None, kind: str | None = None) -> None:
         job.state, job.error, job.error_kind, job.finished = state, error, kind, self.clock()
+        # The uploads are read: only what the client may still download (result, coverage) stays.
+        for path in job.folder.iterdir() if job.folder.is_dir() else ():
+            if path.name not in KEPT_FILES:
+                path.unlink(missing_ok=True)
+        job.disk_bytes = _folder_bytes(job.folder)
+        self._make_room()
         self._cv.notify_all()
+
+    def _make_room(self) -> bool:
+        """Delete the oldest finished jobs' files until the disk cap holds; False if it cannot."""
+        finished = sorted(
+            (j for j in self._jobs.values() if j.finished is not None and j.disk_bytes),
+            key=lambda j: j.finished,
+        )
+        held = sum(j.disk_bytes for j in self._jobs.values())
+        for job in finished:
+            if held <= self.settings.disk_cap_bytes:
+                break
+            shutil.rmtree(job.folder, ignore_errors=True)
+            held -= job.disk_bytes
+            job.disk_bytes = 0
+            job.evicted = (
+                f"its files were deleted to keep this server's jobs under their disk cap of "
+                f"{self.settings.disk_cap_bytes / 2**20:.0f} MiB; run the fill again"
+            )
+        return held <= self.settings.disk_cap_bytes
 
     def _delete(self, job: Job) -> None:
         self._jobs.pop(job.id, None)

@@ -10,29 +10,15 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import math
 import types
 import typing
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Annotated, Any, Literal
 
-from ..config import FillConfig, Length, Range
+from ..config import Cost, FillConfig, Length, Range, ServerOnly, marked_keys
 from ..errors import ConfigError
-
-#: Keys a request may not set: they name files or allow downloads on the server's machine, which only
-#: whoever starts the server decides (``geofill serve --config/--set``). ``max_pixels`` is the server's
-#: upload limit.
-LOCKED_KEYS = frozenset(
-    {
-        "depth.file_path",
-        "depth.model_path",
-        "depth.download",
-        "matching.learned_model",
-        "matching.download",
-        "inpaint.lama_model",
-        "inpaint.download",
-        "max_pixels",
-    }
-)
 
 #: The keys the page offers first, in this order: what a user changes before anything else (what
 #: is done with a removed object the references show, how the rest is painted, the depth, the colour
@@ -61,6 +47,7 @@ class ConfigField:
     locked: bool  # set by the server's operator only
     range: Range | None = None  # a number's bounds; for a list, each item's
     length: Length | None = None  # a list's number of items
+    cost: Cost | None = None  # larger values cost more: capped by the server
 
 
 def _extras(tp: Any) -> tuple[Any, tuple[Any, ...]]:
@@ -107,15 +94,27 @@ def config_fields() -> tuple[ConfigField, ...]:
                 continue
             kind, optional, choices, bounds, length = _kind(tp)
             key = f"{prefix}{f.name}"
-            section, locked = prefix[:-1], key in LOCKED_KEYS
+            # Locked by type, never by a list of names: a ServerOnly field (a path on the server's
+            # machine, a download switch, the server's pixel limit) or free text (it can name a file).
+            section, locked = prefix[:-1], key in server_only or kind == "str"
             out.append(
                 ConfigField(
-                    key, kind, value, optional, choices, f.metadata["help"], section, locked, bounds, length
+                    key, kind, value, optional, choices, f.metadata["help"], section, locked, bounds, length,
+                    costs.get(key),
                 )
-            )
+            )  # fmt: skip
+
+    costs, server_only = marked_keys(Cost), marked_keys(ServerOnly)
 
     walk(FillConfig, FillConfig(), "")
     return tuple(out)
+
+
+@functools.cache
+def locked_keys() -> frozenset[str]:
+    """Keys a request may not set: only whoever starts the server does (``geofill serve
+    --config/--set``)."""
+    return frozenset(f.key for f in config_fields() if f.locked)
 
 
 @functools.cache
@@ -145,13 +144,71 @@ def flatten(data: Any, where: str = "config") -> dict[str, Any]:
     return out
 
 
-def apply_request_config(base: FillConfig, data: Any) -> FillConfig:
-    """``base`` with a request's overrides; ConfigError names the offending key."""
+def value_at(data: dict[str, Any], key: str) -> Any:
+    """The value of dotted ``key`` in a nested config dict (``FillConfig.to_dict()``)."""
+    for part in key.split("."):
+        data = data[part]
+    return data
+
+
+def _over(value: Any, cap: float, cost: Cost) -> bool:
+    """Whether ``value`` (a list: any item) costs more than ``cap`` allows."""
+    if cost.zero_is_most and cap == 0:  # the cap is "no limit"
+        return False
+    return any(
+        v > cap or (cost.zero_is_most and v == 0) for v in (value if isinstance(value, list) else [value])
+    )
+
+
+def _number(x: float) -> str:
+    return f"{x:g}" if isinstance(x, float) else str(x)
+
+
+def server_caps(base: FillConfig, explicit: Mapping[str, Any]) -> tuple[FillConfig, dict[str, float]]:
+    """(``base`` lowered to the caps, the cap of every cost key) of a server whose fills default to
+    ``base``: ``explicit`` (``geofill serve --cap KEY=VALUE``) where given, else ``base``'s own value
+    (a list's: its largest item), so that a request may lower a cost but never raise it. ConfigError
+    names a key that is not a cost or a cap that is not a number."""
+    costs = {f.key: f for f in config_fields() if f.cost}
+    for key, cap in explicit.items():
+        if key not in costs:
+            raise ConfigError(
+                f"--cap {key}: not a setting that scales a fill's cost; those are: {', '.join(costs)}"
+            )
+        whole = costs[key].kind != "float"
+        if isinstance(cap, bool) or not isinstance(cap, int | float) or not math.isfinite(cap) or cap < 0:
+            raise ConfigError(f"--cap {key}: expected a number >= 0, got {cap!r}")
+        if whole and cap != int(cap):
+            raise ConfigError(f"--cap {key}: expected a whole number, got {cap!r}")
+    data = base.to_dict()
+    caps: dict[str, float] = {}
+    lowered: dict[str, Any] = {}
+    for key, f in costs.items():
+        value = value_at(data, key)
+        cap = explicit.get(key, max(value) if isinstance(value, list) else value)
+        caps[key] = int(cap) if f.kind != "float" else float(cap)
+        if _over(value, caps[key], f.cost):
+            lowered[key] = [min(v, caps[key]) for v in value] if isinstance(value, list) else caps[key]
+    return (base.updated(lowered) if lowered else base), caps
+
+
+def apply_request_config(base: FillConfig, data: Any, caps: Mapping[str, float] | None = None) -> FillConfig:
+    """``base`` with a request's overrides; ConfigError names the offending key: one only the
+    server sets, or a cost over its cap in ``caps`` (from :func:`server_caps`)."""
     overrides = flatten(data)
-    locked = sorted(k for k in overrides if k in LOCKED_KEYS)
+    locked = sorted(k for k in overrides if k in locked_keys())
     if locked:
         raise ConfigError(f"config key '{locked[0]}' can only be set by whoever starts the server")
-    return base.updated(overrides) if overrides else base
+    cfg = base.updated(overrides) if overrides else base
+    values = cfg.to_dict()
+    for f in config_fields():
+        if f.cost and f.key in (caps or {}) and _over(value := value_at(values, f.key), caps[f.key], f.cost):
+            shown = "0 (no limit)" if f.cost.zero_is_most and value == 0 else _number(value)
+            raise ConfigError(
+                f"config key '{f.key}': {shown} is over this server's cap of {_number(caps[f.key])} "
+                "(a request may lower it, not raise it)"
+            )
+    return cfg
 
 
 @functools.cache
