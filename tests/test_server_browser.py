@@ -445,6 +445,14 @@ def _assert_advanced_options(driver) -> None:
     focal = driver.find_element(By.CSS_SELECTOR, '.field[data-key="intrinsics.focal_px"] p.limits')
     expected = "Default: automatic · above 0, up to 1,000,000 · empty: automatic."
     assert focal.get_attribute("textContent") == expected
+    # a setting that costs shows this server's cap as its allowed maximum
+    side = driver.find_element(By.CSS_SELECTOR, '.field[data-key="working_max_side"]')
+    assert side.find_element(By.TAG_NAME, "input").get_attribute("max") == "1280"
+    limits = side.find_element(By.CSS_SELECTOR, "p.limits").get_attribute("textContent")
+    assert limits == "Default: 1280 · 64 to 16,384 · this server allows at most 1280."
+    features = driver.find_element(By.CSS_SELECTOR, '.field[data-key="matching.max_features"]')
+    assert features.find_element(By.TAG_NAME, "input").get_attribute("min") == "1"
+    assert "at most 4000 (0, no limit, is refused)" in features.get_attribute("textContent")
 
     matching = driver.find_element(By.CSS_SELECTOR, '#advanced-fields details[data-section="matching"]')
     matching.find_element(By.TAG_NAME, "summary").click()

@@ -591,6 +591,11 @@ function limitsText(f) {
     const count = f.length ? (lo === hi ? `${lo} values` : `${lo} to ${hi} values`) : "values";
     parts.push(f.range ? `${count}, each ${rangeText(f.range)}` : count);
   } else if (f.range) parts.push(rangeText(f.range));
+  if (f.cap !== null && f.cap !== undefined && !(f.zero_is_most && f.cap === 0)) {
+    // the server's cap on a setting that costs: a request may lower it, not raise it
+    const each = f.kind === "list" ? "each " : "";
+    parts.push(`this server allows ${each}at most ${number(f.cap)}${f.zero_is_most ? " (0, no limit, is refused)" : ""}`);
+  }
   if (f.optional && f.kind !== "list") parts.push("empty: automatic");
   return `${parts.join(" · ")}.`;
 }
@@ -609,8 +614,9 @@ function fieldInput(f) {
     input.type = numeric ? "number" : "text";
     if (numeric) input.step = f.kind === "int" ? "1" : "any";
     if (numeric && f.range) {
-      input.min = f.range.lo;
-      input.max = f.range.hi;
+      const capped = f.cap !== null && f.cap !== undefined && !(f.zero_is_most && f.cap === 0);
+      input.min = capped && f.zero_is_most ? Math.max(f.range.lo, 1) : f.range.lo;
+      input.max = capped ? Math.min(f.range.hi, f.cap) : f.range.hi;
     }
     if (f.optional) input.placeholder = "automatic";
   }
