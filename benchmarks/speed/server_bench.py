@@ -8,9 +8,14 @@
 3. ``--fills`` sequential API fills (640x480), each job deleted after its download as a client
    does: RSS and the number of files in the server's folder after each;
 4. ``--malformed`` malformed requests (bad multipart, wrong types, huge headers, unknown and
-   path-like job ids, a client that disconnects mid-upload): how many answers are >= 500.
+   path-like job ids, a client that disconnects mid-upload): how many answers are >= 500;
+5. ``--load`` requests at once, good and bad mixed (:func:`load_kinds`: good small fills, malformed
+   and truncated images, wrong-size masks, configs over the server's caps, bad JSON), on a
+   ``--queue 4`` server, ``--load-rounds`` times: the statuses by kind, the server process's peak
+   RSS and its RSS before and after each round (the accepted jobs then cancelled), the wall time.
 
-Run: ``.venv/bin/python benchmarks/speed/server_bench.py [--repeats 3] [--fills 20] [--malformed 200]``
+Run: ``.venv/bin/python benchmarks/speed/server_bench.py [--repeats 3] [--fills 20] [--malformed 200]
+[--load 50] [--load-rounds 3]``; ``--only-load`` runs section 5 alone.
 """
 
 from __future__ import annotations
@@ -25,7 +30,10 @@ import statistics
 import subprocess
 import sys
 import tempfile
+import threading
 import time
+from collections import Counter
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import httpx
@@ -64,13 +72,14 @@ def tree_rss_mb(proc: psutil.Process) -> float:
 
 
 class Server:
-    """A ``geofill serve`` subprocess with its own TMPDIR (so its folder can be watched)."""
+    """A ``geofill serve`` subprocess with its own TMPDIR (so its folder can be watched); ``flags``
+    are more of ``geofill serve``'s."""
 
-    def __init__(self, tmp: Path) -> None:
+    def __init__(self, tmp: Path, flags: tuple[str, ...] = ()) -> None:
         self.tmp = tmp
         self.port = free_port()
         env = dict(os.environ, TMPDIR=str(tmp), HF_HUB_OFFLINE="1")
-        cmd = [GEOFILL, "serve", "--port", str(self.port), "--workers", "1", "--queue", "4"]
+        cmd = [GEOFILL, "serve", "--port", str(self.port), "--workers", "1", "--queue", "4", *flags]
         self.proc = subprocess.Popen(cmd, env=env, stderr=subprocess.DEVNULL)
         self.ps = psutil.Process(self.proc.pid)
         self.url = f"http://127.0.0.1:{self.port}"
@@ -262,11 +271,119 @@ def malformed(server: Server, total: int) -> None:
     print(f"server still answers: {c.get('/api/v1/limits').status_code == 200}")
 
 
+#: A good fill's config: the cheap path, so that a loaded server's queue moves.
+FAST_CONFIG = {"optimize.enabled": False, "matching.max_rung": "sift", "inpaint.method": "telea"}
+#: The over-cost request of the report that added the caps (each key was accepted before).
+OVER_COST = {
+    "time_budget_s": 1e6,
+    "working_max_side": 16384,
+    "fusion.parallel": 64,
+    "optimize.threads": 256,
+    "matching.max_features": 1_000_000,
+}
+
+
+def load_kinds(seed: int = 4) -> dict[str, tuple[list, dict[str, str], int]]:
+    """Each kind of request of the load run: (files, form fields, the status it gets when the
+    queue has room; 429 otherwise). Good fills are 320x240; the images a bad request sends are
+    640x480, decoded before they are refused."""
+    parts, data = scene_parts(320, 240, seed=seed)
+    big, _ = scene_parts(640, 480, seed=seed + 1)
+    rng = np.random.default_rng(seed)
+    fast = {"config": json.dumps(FAST_CONFIG)}
+    return {
+        "good fill": (parts, fast, 202),
+        "malformed image": ([("target", ("t.png", rng.bytes(20_000))), *parts[1:]], fast, 400),
+        "truncated image": (
+            [("target", ("t.png", data["target"][: len(data["target"]) // 2])), *parts[1:]],
+            fast,
+            400,
+        ),
+        "wrong-size mask": ([big[0], parts[1], big[2]], fast, 400),
+        "over-cap config": (parts, {"config": json.dumps(OVER_COST)}, 422),
+        "bad JSON config": (big, {"config": "{"}, 422),
+    }
+
+
+def rss_mb(proc: psutil.Process) -> float:
+    return proc.memory_info().rss / 2**20
+
+
+def load_burst(server: Server, total: int) -> dict:
+    """``total`` requests at once (one thread each), cycling through :func:`load_kinds`; the
+    accepted jobs are cancelled afterwards. Returns the statuses by kind (``Counter`` of
+    (kind, status)), the job ids accepted, the server process's RSS before, at its peak during the
+    burst and after the cancels (MiB), and the burst's wall time."""
+    kinds = list(load_kinds().items())
+    before = rss_mb(server.ps)
+    peak = [before]
+    done = threading.Event()
+
+    def sample() -> None:
+        while not done.wait(0.02):
+            peak.append(rss_mb(server.ps))
+
+    def send(i: int) -> tuple[str, int, str | None]:
+        kind, (files, form, _) = kinds[i % len(kinds)]
+        r = server.client.post("/api/v1/fill", files=files, data=form)
+        return kind, r.status_code, r.json().get("id") if r.status_code == 202 else None
+
+    sampler = threading.Thread(target=sample)
+    sampler.start()
+    t0 = time.perf_counter()
+    try:
+        with ThreadPoolExecutor(total) as pool:
+            answers = list(pool.map(send, range(total)))
+    finally:
+        wall = time.perf_counter() - t0
+        done.set()
+        sampler.join()
+    accepted = [job for _, _, job in answers if job]
+    for job in accepted:
+        server.client.delete(f"/api/v1/jobs/{job}")
+    return {
+        "statuses": Counter((kind, status) for kind, status, _ in answers),
+        "accepted": accepted,
+        "rss_before_mb": before,
+        "rss_peak_mb": max(peak),
+        "rss_after_mb": rss_mb(server.ps),
+        "wall_s": wall,
+    }
+
+
+def load(server: Server, total: int, rounds: int) -> None:
+    print(f"\n## {rounds} rounds of {total} requests at once, good and bad mixed (--workers 1 --queue 4)")
+    load_burst(server, len(load_kinds()))  # one of each: the server's first decodes and imports
+    for i in range(rounds):
+        out = load_burst(server, total)
+        by_status = Counter(status for (_, status) in out["statuses"].elements())
+        print(
+            f"round {i + 1}: {total} requests in {out['wall_s']:.2f} s; statuses: "
+            + ", ".join(f"{k}: {v}" for k, v in sorted(by_status.items()))
+            + f"; responses >= 500: {sum(v for k, v in by_status.items() if k >= 500)}"
+        )
+        for kind, (_, _, expected) in load_kinds().items():
+            row = {status: n for (k, status), n in out["statuses"].items() if k == kind}
+            print(
+                f"  {kind} (expected {expected} or 429): "
+                + ", ".join(f"{k}: {v}" for k, v in sorted(row.items()))
+            )
+        before, peak, after = out["rss_before_mb"], out["rss_peak_mb"], out["rss_after_mb"]
+        print(
+            f"  server process RSS: before {before:.1f} MiB, peak {peak:.1f} MiB, after (accepted jobs "
+            f"cancelled) {after:.1f} MiB ({after - before:+.1f}); "
+            f"server + workers now {tree_rss_mb(server.ps):.0f} MiB"
+        )
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--fills", type=int, default=20)
     ap.add_argument("--malformed", type=int, default=200)
+    ap.add_argument("--load", type=int, default=50)
+    ap.add_argument("--load-rounds", type=int, default=3)
+    ap.add_argument("--only-load", action="store_true", help="section 5 alone")
     args = ap.parse_args()
     print(f"machine: {os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f} (shared with other jobs)")
     tmp = Path(tempfile.mkdtemp(prefix="geofill-server-bench-"))
@@ -275,11 +392,14 @@ def main() -> None:
     work = tmp / "cli"
     work.mkdir()
     try:
-        overhead(server, args.repeats, work)
-        if args.fills:
-            sequential(server, args.fills)
-        if args.malformed:
-            malformed(server, args.malformed)
+        if not args.only_load:
+            overhead(server, args.repeats, work)
+            if args.fills:
+                sequential(server, args.fills)
+            if args.malformed:
+                malformed(server, args.malformed)
+        if args.load:
+            load(server, args.load, args.load_rounds)
     finally:
         server.stop()
         shutil.rmtree(tmp, ignore_errors=True)
