@@ -6,9 +6,9 @@ that names a file on the server or lets a fill download is locked by its type.""
 from __future__ import annotations
 
 import dataclasses
-import io
 import json
 import re
+import sys
 import threading
 import time
 import typing
@@ -21,7 +21,6 @@ import pytest
 pytest.importorskip("fastapi", reason="the server extra is not installed")
 pytest.importorskip("httpx", reason="FastAPI's TestClient needs httpx")
 from fastapi.testclient import TestClient
-from PIL import Image
 
 from geofill.cli import main
 from geofill.config import FillConfig
@@ -31,20 +30,10 @@ from geofill.server.app import create_app
 from geofill.server.jobs import ServerSettings
 from geofill.synthetic import make_pair
 
-#: The request of the report: each of these was accepted (202) and could hold a worker for days.
-OVER_COST = {
-    "time_budget_s": 1e6,
-    "working_max_side": 16384,
-    "fusion.parallel": 64,
-    "optimize.threads": 256,
-    "matching.max_features": 1_000_000,
-}
-
-
-def png(a: np.ndarray) -> bytes:
-    buf = io.BytesIO()
-    Image.fromarray(a).save(buf, "PNG")
-    return buf.getvalue()
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmarks/: the repository's package
+# OVER_COST: the request of the report, each of whose keys was accepted (202) and could hold a
+# worker for days.
+from benchmarks.speed.server_bench import OVER_COST, png
 
 
 @pytest.fixture(scope="module")
