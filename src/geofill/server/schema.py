@@ -83,6 +83,7 @@ def _kind(tp: Any) -> tuple[str, bool, tuple[Any, ...], Range | None, Length | N
 def config_fields() -> tuple[ConfigField, ...]:
     """Every leaf of :class:`FillConfig`, sections first in declaration order."""
     out: list[ConfigField] = []
+    costs, server_only = marked_keys(Cost), marked_keys(ServerOnly)
 
     def walk(cls: type, defaults: Any, prefix: str) -> None:
         hints = typing.get_type_hints(cls, include_extras=True)
@@ -99,12 +100,19 @@ def config_fields() -> tuple[ConfigField, ...]:
             section, locked = prefix[:-1], key in server_only or kind == "str"
             out.append(
                 ConfigField(
-                    key, kind, value, optional, choices, f.metadata["help"], section, locked, bounds, length,
+                    key,
+                    kind,
+                    value,
+                    optional,
+                    choices,
+                    f.metadata["help"],
+                    section,
+                    locked,
+                    bounds,
+                    length,
                     costs.get(key),
                 )
-            )  # fmt: skip
-
-    costs, server_only = marked_keys(Cost), marked_keys(ServerOnly)
+            )
 
     walk(FillConfig, FillConfig(), "")
     return tuple(out)
