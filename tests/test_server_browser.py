@@ -34,6 +34,7 @@ from selenium.webdriver.common.keys import Keys
 from selenium.webdriver.support.ui import WebDriverWait
 
 from geofill.io import read_mask
+from geofill.server import jobs as jobs_module
 from geofill.server.app import create_app
 from geofill.server.jobs import ServerSettings
 from geofill.synthetic import make_pair
@@ -79,18 +80,31 @@ class _Server(uvicorn.Server):
 
 @pytest.fixture(scope="module")
 def server(tmp_path_factory):
-    """A real uvicorn server with one worker on a free port: (base URL, app)."""
+    """A real uvicorn server with one worker on a free port: (base URL, app). Its jobs keep the
+    uploads the page sent when they end (a server deletes them then), so that the tests read them."""
     app = create_app(ServerSettings(workers=1, temp_parent=str(tmp_path_factory.mktemp("serve"))))
     srv = _Server(uvicorn.Config(app, host="127.0.0.1", port=0, log_level="warning"))
     thread = threading.Thread(target=srv.run, daemon=True)
-    thread.start()
-    deadline = time.monotonic() + 60
-    while not (srv.started and srv.servers) and time.monotonic() < deadline:
-        time.sleep(0.05)
-    port = srv.servers[0].sockets[0].getsockname()[1]
-    yield f"http://127.0.0.1:{port}", app
-    srv.should_exit = True
-    thread.join(30)
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(jobs_module, "KEPT_FILES", _KEEP_EVERY_UPLOAD)
+        thread.start()
+        deadline = time.monotonic() + 60
+        while not (srv.started and srv.servers) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        port = srv.servers[0].sockets[0].getsockname()[1]
+        yield f"http://127.0.0.1:{port}", app
+        srv.should_exit = True
+        thread.join(30)
+
+
+class _KeepEveryUpload(frozenset):
+    """Every file name is kept."""
+
+    def __contains__(self, name: object) -> bool:
+        return True
+
+
+_KEEP_EVERY_UPLOAD = _KeepEveryUpload()
 
 
 @pytest.fixture(scope="module")
