@@ -23,7 +23,7 @@ pytest.importorskip("httpx", reason="FastAPI's TestClient needs httpx")
 from fastapi.testclient import TestClient
 
 from geofill.cli import main
-from geofill.config import FillConfig
+from geofill.config import COSTLY, DownloadSwitch, FillConfig, LocalPath, Range, setting
 from geofill.errors import ConfigError
 from geofill.server import app as app_module
 from geofill.server.app import create_app
@@ -154,6 +154,25 @@ def test_every_path_file_model_and_download_field_is_locked(tmp_path, parts):
             value = True if fields[key].kind == "bool" else "/etc/passwd" if fields[key].kind == "str" else 1
             r = client.post("/api/v1/fill", files=parts, data={"config": json.dumps({key: value})})
             assert r.status_code == 422 and f"'{key}'" in r.json()["detail"], (key, r.text)
+
+
+def test_a_new_path_or_cost_field_is_locked_or_capped_by_its_type_alone():
+    """A config that nobody listed anywhere: its path, download switch and free text are locked,
+    its costly count is a cost, the rest is neither."""
+    from geofill.server.schema import config_fields
+
+    @dataclasses.dataclass
+    class Later:
+        weights: LocalPath | None = setting(None, "a file")
+        fetch: DownloadSwitch = setting(False, "download it")
+        label: str = setting("x", "free text")
+        rounds: typing.Annotated[int, Range(1, 100), COSTLY] = setting(3, "more is slower")
+        ratio: typing.Annotated[float, Range(0, 1)] = setting(0.5, "a threshold")
+        mode: typing.Literal["a", "b"] = setting("a", "a choice")
+
+    fields = {f.key: f for f in config_fields(Later)}
+    assert {k for k, f in fields.items() if f.locked} == {"weights", "fetch", "label"}
+    assert {k for k, f in fields.items() if f.cost} == {"rounds"}
 
 
 def test_a_queue_place_is_held_before_any_upload_is_decoded(tmp_path, parts, monkeypatch):

@@ -1271,9 +1271,9 @@ def _coerce(tp: Any, value: Any, where: str, siblings: dict[str, Any] | None = N
     return value
 
 
-def marked_keys(marker: type) -> dict[str, Any]:
+def marked_keys(marker: type, root: type | None = None) -> dict[str, Any]:
     """Dotted key -> the ``marker`` instance (:class:`Cost`, :class:`ServerOnly`) of every field of
-    :class:`FillConfig` whose type carries one, an optional field's included."""
+    ``root`` (default :class:`FillConfig`) whose type carries one, an optional field's included."""
     out: dict[str, Any] = {}
 
     def walk(cls: type, prefix: str) -> None:
@@ -1289,7 +1289,7 @@ def marked_keys(marker: type) -> dict[str, Any]:
             if found:
                 out[f"{prefix}{f.name}"] = found[0]
 
-    walk(FillConfig, "")
+    walk(root or FillConfig, "")
     return out
 
 

@@ -80,10 +80,11 @@ def _kind(tp: Any) -> tuple[str, bool, tuple[Any, ...], Range | None, Length | N
 
 
 @functools.cache
-def config_fields() -> tuple[ConfigField, ...]:
-    """Every leaf of :class:`FillConfig`, sections first in declaration order."""
+def config_fields(root: type = FillConfig) -> tuple[ConfigField, ...]:
+    """Every leaf of ``root`` (a config dataclass: :class:`FillConfig`), sections first in
+    declaration order."""
     out: list[ConfigField] = []
-    costs, server_only = marked_keys(Cost), marked_keys(ServerOnly)
+    costs, server_only = marked_keys(Cost, root), marked_keys(ServerOnly, root)
 
     def walk(cls: type, defaults: Any, prefix: str) -> None:
         hints = typing.get_type_hints(cls, include_extras=True)
@@ -114,7 +115,7 @@ def config_fields() -> tuple[ConfigField, ...]:
                 )
             )
 
-    walk(FillConfig, FillConfig(), "")
+    walk(root, root(), "")
     return tuple(out)
 
 
