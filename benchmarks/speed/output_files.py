@@ -43,6 +43,7 @@ def run_batches(pairs: list[Path], before: str, jobs: int, tmp: Path) -> tuple[P
     args = ["batch", "--images", str(root / "images"), "--masks", str(root / "masks")]
     args += ["--sources-per-image", str(root / "refs"), "--jobs", str(jobs), "-q", "--allow-fallback"]
     outs = {}
+    (tmp / "before").mkdir()
     for label, src in (("before", export_src(before, tmp / "before")), ("after", str(ROOT / "src"))):
         outs[label] = tmp / f"out_{label}"
         wall, _ = timed_child(
