@@ -315,6 +315,58 @@ def test_a_stop_removes_only_an_unrecorded_output_the_run_created(tmp_path):
     _remove_unrecorded(out, created=True)  # nothing there: nothing to do
 
 
+@pytest.mark.parametrize("out", ["images", "masks", "refs/t3", "link"])
+def test_a_folder_holding_inputs_is_no_output_folder_without_overwrite(pairs, tmp_path, capsys, out):
+    root = _shoot(tmp_path, pairs)
+    (tmp_path / "link").symlink_to(root / "images")  # the same folder under another name
+    before = {f: f.read_bytes() for f in tmp_path.rglob("*") if f.is_file()}
+    code = _batch(root, tmp_path / out, "--sources-per-image", root / "refs")
+    assert code == 4
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert line.startswith(f"geofill: error: {tmp_path / out}: the output folder holds input files (")
+    assert line.endswith(
+        "that the outputs can replace; choose another --out, or give --overwrite to allow it"
+    )
+    assert {f: f.read_bytes() for f in tmp_path.rglob("*") if f.is_file()} == before  # nothing written
+
+
+def test_batch_keeps_each_photos_format_tables_and_metadata(pairs, tmp_path):
+    """A JPEG target gives a JPEG output at its own quantisation tables and subsampling, with its
+    EXIF and ICC profile; a PNG target a PNG. results.jsonl names those files and --resume finds
+    them."""
+    from PIL import Image, JpegImagePlugin
+
+    root = _shoot(tmp_path, pairs)
+    p = pairs["t3"]
+    (root / "images" / "t3.png").unlink()
+    exif = Image.Exif()
+    exif[0x010F] = "geofill-test-camera"  # Make
+    icc = b"\x00\x00\x02\x0cfake-profile-bytes" + bytes(500)
+    shot = root / "images" / "t3.JPG"
+    Image.fromarray(blanked(p.target, p.hole)).save(
+        shot, "JPEG", quality=80, subsampling=1, exif=exif.tobytes(), icc_profile=icc
+    )
+    out = tmp_path / "out"
+    assert _batch(root, out, "--sources-per-image", root / "refs", "--jobs", "1") == 0
+    assert sorted(f.name for f in out.iterdir()) == ["results.jsonl", "t3.JPG", "t5.png"]
+    assert {r["item"]: r["output"] for r in _records(out)} == {
+        "t3": str(out / "t3.JPG"),
+        "t5": str(out / "t5.png"),
+    }
+    with Image.open(shot) as src, Image.open(out / "t3.JPG") as img:
+        assert img.format == "JPEG"
+        assert img.quantization == src.quantization and JpegImagePlugin.get_sampling(img) == 1
+        assert img.getexif()[0x010F] == "geofill-test-camera" and img.info["icc_profile"] == icc
+        # Outside the hole the pixels are the photo's, re-encoded at its own quality.
+        error = np.abs(np.asarray(img, dtype=int) - np.asarray(src, dtype=int))[~p.hole]
+        assert error.mean() < 2.0, error.mean()
+    with Image.open(out / "t5.png") as img:
+        assert img.format == "PNG"
+    mtimes = {f.name: f.stat().st_mtime_ns for f in out.glob("t*")}
+    assert _batch(root, out, "--sources-per-image", root / "refs", "--resume") == 0
+    assert {f.name: f.stat().st_mtime_ns for f in out.glob("t*")} == mtimes  # found, not run again
+
+
 def test_ray_without_the_extra_is_a_one_line_error(pairs, tmp_path, monkeypatch, capsys):
     root = _shoot(tmp_path, {"t3": pairs["t3"]})
     monkeypatch.setitem(sys.modules, "ray", None)  # import ray raises ImportError, as when not installed
