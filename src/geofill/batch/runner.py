@@ -202,12 +202,14 @@ def _check_inputs_spared(items: Sequence[BatchItem], out: Path) -> None:
     out_id = file_id(out)
     if out_id is None:
         return
-    inputs = [
-        Path(p)
+    # A set: with --sources DIR every item names every photo of the shoot as a candidate.
+    named = {
+        p
         for item in items
         for p in (item.target, item.mask, *item.sources, *item.candidates, *item.reference_masks.values())
         if p
-    ]
+    }
+    inputs = sorted(Path(p) for p in named)
     folders = file_ids(f for p in inputs for f in (p.parent, p.resolve().parent))
     if out_id in folders:
         held = next(p for p in inputs if out_id in (file_id(p.parent), file_id(p.resolve().parent)))
