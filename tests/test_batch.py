@@ -6,11 +6,13 @@ from __future__ import annotations
 import io
 import json
 import os
+import re
 import shutil
 import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -193,25 +195,40 @@ def test_single_fill_allow_fallback_rule(pairs, tmp_path, capsys):
     assert np.array_equal(_read_rgb(tmp_path / "a.png"), _read_rgb(tmp_path / "b.png"))
 
 
-def _start_batch(tmp_path, pairs, *extra):
-    """24 small items in a ``geofill batch`` subprocess, started when its first item is recorded:
-    enough that, under load, a signal lands long before the last one finishes."""
-    names = {f"{key}_{i}": key for i in range(12) for key in pairs}
-    root, out = _shoot(tmp_path, pairs, names), tmp_path / "out"
-    cmd = [sys.executable, "-m", "geofill.cli", "batch", "--images", str(root / "images")]
-    cmd += ["--masks", str(root / "masks"), "--sources-per-image", str(root / "refs"), "--out", str(out)]
-    cmd += ["--jobs", "2", *extra]
+HANG = Path(__file__).with_name("batch_hang.py")
+
+
+def _start_batch(tmp_path, pairs, *extra, out=None):
+    """A ``geofill batch`` subprocess of 2 small items and one, ``hang``, that writes its output and
+    then never finishes (tests/batch_hang.py), returned once the 2 are recorded and the third's
+    output is written: the batch cannot end before a signal, and how many items it recorded is known."""
+    names = {f"{key}_0": key for key in pairs} | {"hang": "t3"}
+    root = _shoot(tmp_path, pairs, names)
+    out = out or tmp_path / "out"
+    args = ["batch", "--images", str(root / "images"), "--masks", str(root / "masks")]
+    args += ["--sources-per-image", str(root / "refs"), "--out", str(out), "--jobs", "2", *extra]
     # A session of its own, so that a signal can go to the whole process group as a service manager
     # sends it (the workers get it too).
     proc = subprocess.Popen(
-        cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True
+        [sys.executable, str(HANG), *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
     )
-    results = out / "results.jsonl"
+    results, hung = out / "results.jsonl", out / "hang.png"
+    before = hung.read_bytes() if hung.is_file() else None  # the photo itself when out is --images
     deadline = time.monotonic() + 300
-    while not (results.is_file() and results.read_text().strip()) and time.monotonic() < deadline:
+    while time.monotonic() < deadline:
+        recorded = len(results.read_text().splitlines()) if results.is_file() else 0
+        if recorded == len(names) - 1 and hung.is_file() and hung.read_bytes() != before:
+            break
         assert proc.poll() is None, proc.communicate()
-        time.sleep(0.2)
-    return proc, names, out, cmd
+        time.sleep(0.1)  # polling for a state the batch cannot leave by itself, not a race
+    else:
+        proc.kill()
+        pytest.fail(f"the batch did not reach its hanging item: {proc.communicate()}")
+    return proc, names, out, [sys.executable, "-m", "geofill.cli", *args]
 
 
 def test_ctrl_c_keeps_finished_items_and_prints_the_summary(pairs, tmp_path):
@@ -220,17 +237,17 @@ def test_ctrl_c_keeps_finished_items_and_prints_the_summary(pairs, tmp_path):
     stdout, stderr = proc.communicate(timeout=60)
     assert proc.returncode == EXIT_INTERRUPTED, stderr
     records = _records(out)
-    assert 1 <= len(records) < len(names)
-    assert "STOPPED by Ctrl-C" in stdout and "not run (stopped by Ctrl-C)" in stdout
+    assert sorted(r["item"] for r in records) == sorted(n for n in names if n != "hang")
+    assert "STOPPED by Ctrl-C" in stdout and re.search(r"not run \(stopped by Ctrl-C\) +1\n", stdout)
     for r in records:
         assert r["status"] == "reference"
         p = pairs[names[r["item"]]]
         assert np.array_equal(_read_rgb(r["output"])[~p.hole], p.target[~p.hole])
-    # Nothing half-written: every file left is results.jsonl or an image that decodes.
-    for f in out.iterdir():
-        assert f.name == "results.jsonl" or (f.suffix == ".png" and _read_rgb(f).shape == (240, 320, 3)), (
-            f.name
-        )
+    # The hanging item's output, written by this run but never recorded, is removed: every file left
+    # is results.jsonl or a recorded image.
+    assert sorted(f.name for f in out.iterdir()) == sorted(
+        ["results.jsonl", *(f"{r['item']}.png" for r in records)]
+    )
 
 
 @pytest.mark.parametrize("to", ["batch", "group"])
@@ -248,7 +265,7 @@ def test_sigterm_stops_at_once_keeping_finished_items_for_resume(pairs, tmp_path
     # Within the time a worker takes to die, not after the items in flight finish (seconds each).
     assert stopped_s < 3.0, stopped_s
     records = _records(out)
-    assert 1 <= len(records) < len(names)
+    assert sorted(r["item"] for r in records) == sorted(n for n in names if n != "hang")
     # A worker's fill cut short by the signal is no failed item: every record is a finished fill.
     assert all(r["status"] == "reference" for r in records), records
     # Every output written is recorded, and nothing else is left (no temporary file of a write).
@@ -257,7 +274,7 @@ def test_sigterm_stops_at_once_keeping_finished_items_for_resume(pairs, tmp_path
     assert {f.name for f in out.iterdir()} == {"results.jsonl"} | {f"{n}.png" for n in written}
     if to == "group":
         return
-    # --resume skips exactly those and runs only the others.
+    # --resume (the real command, whose items all finish) skips exactly those and runs the other.
     rerun = subprocess.run([*cmd, "--resume"], capture_output=True, text=True, timeout=600)
     assert rerun.returncode == 0, rerun.stderr
     assert f"skipped (already complete)  {len(records):>5d}" in rerun.stdout
@@ -266,21 +283,88 @@ def test_sigterm_stops_at_once_keeping_finished_items_for_resume(pairs, tmp_path
     assert all(after[r["item"]] == r for r in records)  # kept as they were, not run again
 
 
-def test_a_stop_removes_what_an_unrecorded_item_wrote_since_it_started(tmp_path):
-    """A worker killed after its write but before its result came back leaves an output no record
-    names; one written before the item started (an earlier run's) and other files are kept."""
+def test_a_stop_never_removes_a_file_the_run_did_not_create(pairs, tmp_path):
+    """--out the --images folder with --overwrite: the hanging item replaces its target with its
+    fill and is stopped before its record. The file was there before the run, so the stop keeps it
+    (deciding by modification time, it removed the user's photo)."""
+    images = tmp_path / "images"
+    proc, names, _, _ = _start_batch(tmp_path, pairs, "--overwrite", out=images)
+    proc.send_signal(signal.SIGINT)
+    _, stderr = proc.communicate(timeout=60)
+    assert proc.returncode == EXIT_INTERRUPTED, stderr
+    assert sorted(f.name for f in images.glob("*.png")) == sorted(f"{n}.png" for n in names)
+    p = pairs["t3"]
+    hung = _read_rgb(images / "hang.png")  # the fill, complete, where the photo was
+    assert np.array_equal(hung[~p.hole], p.target[~p.hole]) and not np.array_equal(
+        hung, blanked(p.target, p.hole)
+    )
+
+
+def test_a_stop_removes_only_an_unrecorded_output_the_run_created(tmp_path):
+    """Known by name: the output of an item stopped in flight is removed when no file of its name
+    existed before the run, kept otherwise however recently it was written; a write cut short (its
+    temporary file) goes either way, and other files stay."""
     out = tmp_path / "a.png"
-    out.write_bytes(b"earlier run")
-    old = time.time() - 60
-    os.utime(out, (old, old))
+    out.write_bytes(b"written just now, but over a file that was there")
     (tmp_path / ".a.png.123.tmp").write_bytes(b"half")  # a write cut short
     (tmp_path / "b.png").write_bytes(b"another item")
-    _remove_unrecorded(out, since=time.time() - 1)
+    _remove_unrecorded(out, created=False)
     assert sorted(f.name for f in tmp_path.iterdir()) == ["a.png", "b.png"]
-    out.write_bytes(b"this run")  # written after the item started
-    _remove_unrecorded(out, since=time.time() - 1)
+    _remove_unrecorded(out, created=True)
     assert sorted(f.name for f in tmp_path.iterdir()) == ["b.png"]
-    _remove_unrecorded(out, since=0.0)  # nothing there: nothing to do
+    _remove_unrecorded(out, created=True)  # nothing there: nothing to do
+
+
+@pytest.mark.parametrize("out", ["images", "masks", "refs/t3", "link"])
+def test_a_folder_holding_inputs_is_no_output_folder_without_overwrite(pairs, tmp_path, capsys, out):
+    root = _shoot(tmp_path, pairs)
+    (tmp_path / "link").symlink_to(root / "images")  # the same folder under another name
+    before = {f: f.read_bytes() for f in tmp_path.rglob("*") if f.is_file()}
+    code = _batch(root, tmp_path / out, "--sources-per-image", root / "refs")
+    assert code == 4
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert line.startswith(f"geofill: error: {tmp_path / out}: the output folder holds input files (")
+    assert line.endswith(
+        "that the outputs can replace; choose another --out, or give --overwrite to allow it"
+    )
+    assert {f: f.read_bytes() for f in tmp_path.rglob("*") if f.is_file()} == before  # nothing written
+
+
+def test_batch_keeps_each_photos_format_tables_and_metadata(pairs, tmp_path):
+    """A JPEG target gives a JPEG output at its own quantisation tables and subsampling, with its
+    EXIF and ICC profile; a PNG target a PNG. results.jsonl names those files and --resume finds
+    them."""
+    from PIL import Image, JpegImagePlugin
+
+    root = _shoot(tmp_path, pairs)
+    p = pairs["t3"]
+    (root / "images" / "t3.png").unlink()
+    exif = Image.Exif()
+    exif[0x010F] = "geofill-test-camera"  # Make
+    icc = b"\x00\x00\x02\x0cfake-profile-bytes" + bytes(500)
+    shot = root / "images" / "t3.JPG"
+    Image.fromarray(blanked(p.target, p.hole)).save(
+        shot, "JPEG", quality=80, subsampling=1, exif=exif.tobytes(), icc_profile=icc
+    )
+    out = tmp_path / "out"
+    assert _batch(root, out, "--sources-per-image", root / "refs", "--jobs", "1") == 0
+    assert sorted(f.name for f in out.iterdir()) == ["results.jsonl", "t3.JPG", "t5.png"]
+    assert {r["item"]: r["output"] for r in _records(out)} == {
+        "t3": str(out / "t3.JPG"),
+        "t5": str(out / "t5.png"),
+    }
+    with Image.open(shot) as src, Image.open(out / "t3.JPG") as img:
+        assert img.format == "JPEG"
+        assert img.quantization == src.quantization and JpegImagePlugin.get_sampling(img) == 1
+        assert img.getexif()[0x010F] == "geofill-test-camera" and img.info["icc_profile"] == icc
+        # Outside the hole the pixels are the photo's, re-encoded at its own quality.
+        error = np.abs(np.asarray(img, dtype=int) - np.asarray(src, dtype=int))[~p.hole]
+        assert error.mean() < 2.0, error.mean()
+    with Image.open(out / "t5.png") as img:
+        assert img.format == "PNG"
+    mtimes = {f.name: f.stat().st_mtime_ns for f in out.glob("t*")}
+    assert _batch(root, out, "--sources-per-image", root / "refs", "--resume") == 0
+    assert {f.name: f.stat().st_mtime_ns for f in out.glob("t*")} == mtimes  # found, not run again
 
 
 def test_ray_without_the_extra_is_a_one_line_error(pairs, tmp_path, monkeypatch, capsys):

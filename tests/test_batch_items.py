@@ -35,7 +35,16 @@ def test_masks_matched_by_stem(tmp_path):
     assert by["b"].mask == str(tmp_path / "masks" / "b.png")  # b.jpg's mask is b.png
     assert by["a"].sources == (str(tmp_path / "src/a/s0.png"), str(tmp_path / "src/a/s1.jpg"))
     assert by["c"].error == f"{tmp_path / 'img/c.png'}: no mask with stem 'c' in {tmp_path / 'masks'}"
-    assert [i.output for i in items] == ["a.png", "b.png", "c.png"]
+    # Each output keeps its target's format; --format names one for all.
+    assert [i.output for i in items] == ["a.png", "b.jpg", "c.png"]
+    png = items_from_folders(
+        tmp_path / "img", tmp_path / "masks", sources_per_image=tmp_path / "src", output_format="png"
+    )
+    assert [i.output for i in png] == ["a.png", "b.png", "c.png"]
+    jpeg = items_from_folders(
+        tmp_path / "img", tmp_path / "masks", sources_per_image=tmp_path / "src", output_format="jpeg"
+    )
+    assert [i.output for i in jpeg] == ["a.jpg", "b.jpg", "c.jpg"]
 
 
 def test_one_mask_for_all_and_sources_exclude_the_target(tmp_path):
@@ -54,6 +63,10 @@ def test_same_stem_twice_and_missing_folders(tmp_path):
     _touch_images(tmp_path / "img", ["a.png", "a.jpg"])
     _touch_images(tmp_path / "masks", ["a.png"])
     items = items_from_folders(tmp_path / "img", tmp_path / "masks", sources=tmp_path / "masks")
+    assert [(i.output, i.error) for i in items] == [("a.jpg", ""), ("a.png", "")]  # formats kept apart
+    items = items_from_folders(
+        tmp_path / "img", tmp_path / "masks", sources=tmp_path / "masks", output_format="png"
+    )
     assert not items[0].error
     assert (
         items[1].error
@@ -98,6 +111,19 @@ def test_manifest_csv_rows_and_line_numbers(tmp_path):
     assert "must be a file name" in errors[f"{path}:6"]
     assert errors[f"{path}:7"] == f"{path}:7: 6 cells for 5 columns"
     assert errors[f"{path}:8"] == f"{path}:8: output t1.png is already written by {path}:2"
+
+
+def test_manifest_outputs_keep_the_targets_format_unless_named(tmp_path):
+    path = tmp_path / "batch.csv"
+    path.write_text(
+        "target,mask,sources,output\nshot.JPG,m.png,s.jpg,\nscan.tiff,m.png,s.jpg,\n"
+        "raw.heic,m.png,s.jpg,\nnamed.jpg,m.png,s.jpg,clean.png\n"
+    )
+    outputs = [i.output for i in read_manifest(path, FillConfig())]
+    # HEIC is read, not written: PNG (lossless) stands in for it.
+    assert outputs == ["shot.JPG", "scan.tiff", "raw.png", "clean.png"]
+    outputs = [i.output for i in read_manifest(path, FillConfig(), output_format="webp")]
+    assert outputs == ["shot.webp", "scan.webp", "raw.webp", "clean.png"]  # a named output wins
 
 
 def test_manifest_jsonl_rows_and_line_numbers(tmp_path):

@@ -172,6 +172,55 @@ def test_bad_input_is_one_line_error_and_writes_nothing(files, tmp_path, capsys,
     )
 
 
+@pytest.mark.parametrize(
+    ("role", "spelling"),
+    [
+        ("target", "dotted"),  # -o sub/../target.png
+        ("target", "link"),  # -o a symbolic link to the target
+        ("mask", "same"),
+        ("source", "same"),
+        ("source-mask", "same"),
+    ],
+)
+def test_an_output_that_is_an_input_is_refused_before_any_work(files, tmp_path, capsys, role, spelling):
+    """However the output path is spelt, the photo it names is not replaced without --overwrite."""
+    d, p = files
+    for name in ("target.png", "mask.png", "source.png"):
+        (tmp_path / name).write_bytes((d / name).read_bytes())
+    cv2.imwrite(str(tmp_path / "source_mask.png"), np.zeros(p.source.shape[:2], np.uint8))
+    (tmp_path / "sub").mkdir()
+    victim = tmp_path / ("source_mask.png" if role == "source-mask" else f"{role}.png")
+    out = {"dotted": tmp_path / "sub" / ".." / victim.name, "link": tmp_path / "link.png"}.get(
+        spelling, victim
+    )
+    if spelling == "link":
+        out.symlink_to(victim)
+    before = {f.name: f.read_bytes() for f in tmp_path.iterdir() if f.is_file()}
+    argv = [*fill_args(tmp_path, out), "--source-mask", tmp_path / "source_mask.png"]
+    code, err = run(argv, capsys)
+    assert code == 4
+    flag = f"--{role} {victim}"
+    assert err == [
+        f"geofill: error: {out}: is the {flag}; the output would replace it "
+        "(give another -o, or --overwrite to replace it)"
+    ]
+    assert {f.name: f.read_bytes() for f in tmp_path.iterdir() if f.is_file()} == before
+
+
+def test_overwrite_lets_the_output_replace_the_target(files, tmp_path, capsys):
+    d, _ = files
+    for name in ("target.png", "mask.png", "source.png"):
+        (tmp_path / name).write_bytes((d / name).read_bytes())
+    target, elsewhere = tmp_path / "target.png", tmp_path / "elsewhere" / "fill.png"
+    elsewhere.parent.mkdir()
+    assert run([*fill_args(tmp_path, elsewhere), "-q"], capsys) == (0, [])
+    assert run([*fill_args(tmp_path, target), "--overwrite", "-q"], capsys) == (0, [])
+    # The target now holds the fill, the same as written elsewhere; nothing else was left.
+    assert np.array_equal(cv2.imread(str(target)), cv2.imread(str(elsewhere)))
+    assert not np.array_equal(cv2.imread(str(target)), cv2.imread(str(d / "target.png")))
+    assert sorted(f.name for f in tmp_path.iterdir()) == ["elsewhere", "mask.png", "source.png", "target.png"]
+
+
 def test_a_corrupt_exif_block_is_a_note_not_a_python_warning(files, tmp_path):
     d, p = files
     exif = Image.Exif()

@@ -100,6 +100,12 @@ def test_exif_and_icc_are_carried_and_orientation_reset(corpus, tmp_path):
     # Upright pixels outside the hole are the decoded target's, byte for byte.
     hole = corpus.hole
     assert np.array_equal(read_image(kept).pixels[~hole], read_image(target).pixels[~hole])
+    # A JPEG output of this JPEG target: its quantisation tables, EXIF and ICC profile.
+    jpeg = tmp_path / "kept.jpg"
+    assert main(_fill_argv(corpus, jpeg, target, "--quiet")) == 0
+    with Image.open(target) as src, Image.open(jpeg) as img:
+        assert img.quantization == src.quantization
+        assert img.info.get("icc_profile") == icc and img.getexif()[0x010F] == "geofill-test-camera"
 
 
 def test_lossy_output_says_it_re_encodes(corpus, tmp_path, capsys):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import stat
 import struct
 import sys
 import zlib
@@ -491,6 +492,64 @@ def test_write_image_atomic_failure_leaves_old_file_and_no_temp(tmp_path, monkey
         io.write_image_atomic(path, _rng_rgb(seed=2))
     assert path.read_bytes() == before
     assert [p.name for p in tmp_path.iterdir()] == ["out.png"]
+
+
+def test_write_image_atomic_flushes_the_file_then_the_folder_around_the_rename(tmp_path, monkeypatch):
+    """A power cut after the rename must find the new image: its data reaches the disk before the
+    rename, the folder's new entry after it."""
+    events = []
+    real_fsync, real_replace = os.fsync, os.replace
+
+    def fsync(fd):
+        events.append("fsync folder" if stat.S_ISDIR(os.fstat(fd).st_mode) else "fsync file")
+        real_fsync(fd)
+
+    def replace(src, dst):
+        events.append(f"rename {Path(src).name[:9]} -> {Path(dst).name}")
+        real_replace(src, dst)
+
+    monkeypatch.setattr(os, "fsync", fsync)
+    monkeypatch.setattr(os, "replace", replace)
+    io.write_image_atomic(tmp_path / "out.png", _rng_rgb())
+    assert events == ["fsync file", "rename .out.png. -> out.png", "fsync folder"]
+    np.testing.assert_array_equal(io.read_image(tmp_path / "out.png").pixels, _rng_rgb())
+
+
+def _jpeg_tables(path):
+    from PIL import JpegImagePlugin
+
+    with Image.open(path) as img:
+        return {k: list(v) for k, v in img.quantization.items()}, JpegImagePlugin.get_sampling(img)
+
+
+def test_jpeg_output_keeps_the_inputs_quantisation_tables(tmp_path):
+    """A JPEG input's tables and subsampling (quality 70, 4:4:4 here) are those of its JPEG output,
+    whatever Pillow's default quality would be; --quality replaces them; a PNG input gives 95."""
+    rgb = _quadrants(96, 128)
+    Image.fromarray(rgb).save(tmp_path / "in.jpg", quality=70, subsampling=0)
+    tables, sampling = _jpeg_tables(tmp_path / "in.jpg")
+    assert sampling == 0 and len(tables) == 2
+    loaded = io.read_image(tmp_path / "in.jpg")
+    io.write_image_atomic(tmp_path / "out.jpg", loaded.pixels, metadata=loaded.metadata)
+    assert _jpeg_tables(tmp_path / "out.jpg") == (tables, 0)
+    io.write_image_atomic(tmp_path / "q90.jpg", loaded.pixels, metadata=loaded.metadata, quality=90)
+    Image.fromarray(rgb).save(tmp_path / "pillow90.jpg", quality=90)
+    assert _jpeg_tables(tmp_path / "q90.jpg") == _jpeg_tables(tmp_path / "pillow90.jpg")
+    # The tables are how the file was encoded, not metadata: stripping EXIF and ICC keeps them.
+    io.write_image_atomic(tmp_path / "bare.jpg", loaded.pixels, metadata=loaded.metadata.stripped())
+    assert _jpeg_tables(tmp_path / "bare.jpg") == (tables, 0)
+    png = io.read_image(_save(tmp_path / "in.png", rgb))
+    assert png.metadata.jpeg_tables is None
+    io.write_image_atomic(tmp_path / "from_png.jpg", png.pixels, metadata=png.metadata)
+    Image.fromarray(rgb).save(tmp_path / "pillow95.jpg", quality=95)
+    assert _jpeg_tables(tmp_path / "from_png.jpg") == _jpeg_tables(tmp_path / "pillow95.jpg")
+    # A grey JPEG has one table: it serves the chroma of the RGB output too.
+    Image.fromarray(rgb[..., 0]).save(tmp_path / "grey.jpg", quality=60)
+    grey = io.read_image(tmp_path / "grey.jpg")
+    io.write_image_atomic(tmp_path / "grey_out.jpg", grey.pixels, metadata=grey.metadata)
+    grey_tables, _ = _jpeg_tables(tmp_path / "grey.jpg")
+    assert list(grey_tables) == [0]
+    assert _jpeg_tables(tmp_path / "grey_out.jpg")[0] == {0: grey_tables[0], 1: grey_tables[0]}
 
 
 def test_write_image_atomic_refuses_bad_paths_and_writes_nothing(tmp_path):

@@ -16,7 +16,8 @@ import typing
 from pathlib import Path
 
 from .config import PRESETS, Cost, DepthConfig, FillConfig, choices, marked_keys, parse_overrides
-from .errors import EXIT_FELL_BACK, EXIT_ITEMS_FAILED, ConfigError, GeoFillError, Terminated
+from .errors import EXIT_FELL_BACK, EXIT_ITEMS_FAILED, ConfigError, GeoFillError, OutputError, Terminated
+from .formats import FORMAT_SUFFIXES
 from .progress import Progress
 
 #: What ``geofill --help`` says the program is (plain text: argparse prints it as it is).
@@ -115,15 +116,16 @@ def _quality(text: str) -> int:
     return value
 
 
-#: Output extensions whose encoders are lossy: the pixels outside the hole change too.
-_LOSSY_OUTPUTS = (".jpg", ".jpeg", ".webp")
+_OVERWRITE_HELP = "allow an output to replace an input file (the target photo, say); refused otherwise"
 
 
 def cmd_fill(args: argparse.Namespace) -> int:
     from .debug import write_debug
     from .io import (
+        LOSSY_SUFFIXES,
         check_output_dir,
         check_output_path,
+        file_id,
         read_image,
         read_mask,
         read_reference_mask,
@@ -136,12 +138,21 @@ def cmd_fill(args: argparse.Namespace) -> int:
     started = time.perf_counter()
     cfg = _config_from_args(args)
     check_output_path(args.output)
-    lossy = Path(args.output).suffix.lower() in _LOSSY_OUTPUTS
+    lossy = Path(args.output).suffix.lower() in LOSSY_SUFFIXES
     if args.quality is not None and not lossy:
         raise ConfigError(f"{args.output}: --quality applies to JPEG and WebP output only")
     if args.debug_dir:
         check_output_dir(args.debug_dir)
     source_paths, mask_paths = reference_paths(args.source or [], args.sources, args.source_mask)
+    inputs = [("--target", args.target), ("--mask", args.mask), ("--depth-file", cfg.depth.file_path)]
+    inputs += [("--source", p) for p in source_paths] + [("--source-mask", m) for m in mask_paths if m]
+    out_id = file_id(args.output)
+    replaced = next((f"{flag} {p}" for flag, p in inputs if p and out_id and file_id(p) == out_id), None)
+    if replaced is not None and not args.overwrite:
+        raise OutputError(
+            f"{args.output}: is the {replaced}; the output would replace it "
+            "(give another -o, or --overwrite to replace it)"
+        )
     target = read_image(args.target, max_pixels=cfg.max_pixels, min_side=cfg.min_side_px)
     sources = [read_image(p, max_pixels=cfg.max_pixels, min_side=cfg.min_side_px) for p in source_paths]
     mask = read_mask(args.mask, max_pixels=cfg.max_pixels)
@@ -168,8 +179,8 @@ def cmd_fill(args: argparse.Namespace) -> int:
             f"note: {Path(args.output).suffix} output re-encodes every pixel, those outside the hole too; "
             "use PNG or TIFF to keep them byte-identical"
         )
-    metadata = None if args.strip_metadata else target.metadata
-    if metadata is not None and metadata.note:
+    metadata = target.metadata.stripped() if args.strip_metadata else target.metadata
+    if metadata.note:
         prog.say(f"note: {args.target}: {metadata.note}")
     for image in (target, *sources):
         if image.metadata.unread:
@@ -204,12 +215,15 @@ def cmd_fill(args: argparse.Namespace) -> int:
 
 def cmd_batch(args: argparse.Namespace) -> int:
     from .batch import BatchSettings, items_from_folders, read_manifest, run_batch
+    from .io import LOSSY_SUFFIXES
 
     cfg = _config_from_args(args)
+    if args.quality is not None and args.format and FORMAT_SUFFIXES[args.format] not in LOSSY_SUFFIXES:
+        raise ConfigError(f"--quality applies to JPEG and WebP output only, not --format {args.format}")
     if args.manifest:
         if args.images or args.masks or args.sources or args.sources_per_image:
             raise ConfigError("--manifest names every file: give it without --images/--masks/--sources")
-        items = read_manifest(Path(args.manifest), cfg)
+        items = read_manifest(Path(args.manifest), cfg, output_format=args.format)
     else:
         if not (args.images and args.masks):
             raise ConfigError("give --images and --masks (or a --manifest)")
@@ -219,6 +233,7 @@ def cmd_batch(args: argparse.Namespace) -> int:
             sources=Path(args.sources) if args.sources else None,
             sources_per_image=Path(args.sources_per_image) if args.sources_per_image else None,
             max_refs=args.max_refs,
+            output_format=args.format,
         )
     settings = BatchSettings(
         out_dir=Path(args.out),
@@ -227,6 +242,9 @@ def cmd_batch(args: argparse.Namespace) -> int:
         allow_fallback=args.allow_fallback,
         ray=args.ray,
         quiet=args.quiet,
+        quality=args.quality,
+        strip_metadata=args.strip_metadata,
+        overwrite=args.overwrite,
     )
     return run_batch(items, cfg, settings).exit_code
 
@@ -398,8 +416,10 @@ def build_parser() -> argparse.ArgumentParser:
         "--quality",
         type=_quality,
         metavar="1-100",
-        help="JPEG/WebP output quality (default 95); lossy output re-encodes the pixels outside the hole",
+        help="JPEG/WebP output quality (default: a JPEG target's own quantisation tables, else 95); "
+        "lossy output re-encodes the pixels outside the hole",
     )
+    p.add_argument("--overwrite", action="store_true", help=_OVERWRITE_HELP)
     p.add_argument(
         "--strip-metadata",
         action="store_true",
@@ -421,7 +441,9 @@ def build_parser() -> argparse.ArgumentParser:
         "batch",
         help="fill many images: folders matched by stem or a manifest; parallel, resumable, Ray",
         description="Fill every image of --images (its mask: same stem in --masks, or one mask file for "
-        "all) or every row of --manifest, writing OUT/{stem}.png and OUT/results.jsonl. A reference's "
+        "all) or every row of --manifest, writing OUT/{stem}.{its extension} (the photo's own format, "
+        "JPEG at its own quantisation tables, EXIF and ICC profile kept; --format to choose) and "
+        "OUT/results.jsonl. A reference's "
         "mask (what must never be copied from it: a passer-by, a parked car) is <ref stem>.mask.png beside "
         "it (any image format; never a target or reference itself), or the manifest's source_masks "
         "column. Exit status: 0 when "
@@ -451,7 +473,29 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="FILE",
         help="CSV or JSONL: target, mask, sources, optional source_masks, output and set",
     )
-    p.add_argument("--out", required=True, metavar="DIR", help="output folder (created if missing)")
+    p.add_argument(
+        "--out",
+        required=True,
+        metavar="DIR",
+        help="output folder (created if missing); one that holds input files is refused without --overwrite",
+    )
+    p.add_argument(
+        "--format",
+        choices=sorted(FORMAT_SUFFIXES),
+        help="output format of every item (default: each target's own; a manifest's output name wins)",
+    )
+    p.add_argument(
+        "--quality",
+        type=_quality,
+        metavar="1-100",
+        help="JPEG/WebP output quality (default: a JPEG target's own quantisation tables, else 95)",
+    )
+    p.add_argument(
+        "--strip-metadata",
+        action="store_true",
+        help="do not copy each target's EXIF (GPS included) and ICC profile into its output",
+    )
+    p.add_argument("--overwrite", action="store_true", help=_OVERWRITE_HELP)
     p.add_argument(
         "--max-refs", type=int, default=3, metavar="N", help="references picked per target with --sources (3)"
     )

@@ -23,11 +23,13 @@ from typing import Any
 
 from ..config import FillConfig, parse_overrides
 from ..errors import ConfigError, GeoFillError, InputError
+from ..formats import FORMAT_SUFFIXES
 from ..io import is_reference_mask, split_reference_masks
 
 #: Files taken as images in folders (the formats :func:`geofill.io.read_image` decodes).
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".webp", ".tif", ".tiff")
-#: Output formats :func:`geofill.io.write_image_atomic` writes; a batch writes ``{stem}.png`` by default.
+#: Output formats :func:`geofill.io.write_image_atomic` writes; a batch writes each target's own
+#: format by default (:func:`output_name`).
 OUTPUT_SUFFIXES = IMAGE_SUFFIXES
 MANIFEST_COLUMNS = ("target", "mask", "sources", "source_masks", "output", "set")
 _REQUIRED = ("target", "mask", "sources")
@@ -58,6 +60,15 @@ class BatchItem:
     error: str = ""
 
 
+def output_name(target: Path, output_format: str | None = None) -> str:
+    """The output file name of ``target``: its stem with the extension of ``output_format`` (a
+    :data:`FORMAT_SUFFIXES` key) or, by default, its own extension, so that a JPEG stays a JPEG;
+    ``.png`` for a format geofill reads but does not write (HEIC)."""
+    if output_format is not None:
+        return target.stem + FORMAT_SUFFIXES[output_format]
+    return target.name if target.suffix.lower() in OUTPUT_SUFFIXES else f"{target.stem}.png"
+
+
 def image_files(folder: Path) -> list[Path]:
     """The image files directly inside ``folder``, sorted by name (reference masks included)."""
     if not folder.is_dir():
@@ -79,13 +90,14 @@ def items_from_folders(
     sources: Path | None = None,
     sources_per_image: Path | None = None,
     max_refs: int = 1,
+    output_format: str | None = None,
 ) -> list[BatchItem]:
     """One item per image in ``images``. ``masks`` is a folder (the mask with the image's stem) or
     one mask file for every image. References: ``sources`` (every image of that folder but the
     target itself is a candidate; the best ``max_refs`` are picked per target) or
     ``sources_per_image`` (``DIR/<stem>/`` holds the image's references, all used, in name order).
     A reference's mask is ``<stem>.mask.png`` beside it; such files are neither targets nor
-    references."""
+    references. Outputs are named by :func:`output_name`."""
     if (sources is None) == (sources_per_image is None):
         raise InputError("give the references with exactly one of --sources, --sources-per-image, --manifest")
     if max_refs < 1:
@@ -103,7 +115,7 @@ def items_from_folders(
             name=target.stem,
             target=str(target),
             mask=str(masks),
-            output=f"{target.stem}.png",
+            output=output_name(target, output_format),
             max_refs=max_refs,
             where=str(target),
         )
@@ -143,16 +155,17 @@ def items_from_folders(
     return _unique_outputs(items)
 
 
-def read_manifest(path: Path, base_config: FillConfig) -> list[BatchItem]:
+def read_manifest(path: Path, base_config: FillConfig, output_format: str | None = None) -> list[BatchItem]:
     """Items of a manifest: CSV with a header row, or JSONL (one JSON object per line; by suffix
     ``.jsonl``/``.json``). Fields: ``target``, ``mask``, ``sources`` (one or more; in CSV separated
     by ``;``), optional ``source_masks`` (each source's mask, in the order of ``sources``, empty
     (JSONL: null or "") for a source without one; in CSV separated by ``;``; fewer than the
-    sources leave the last ones unmasked), optional ``output`` (file name in the output folder,
-    default ``{target stem}.png``) and ``set`` (config overrides: in CSV ``key=value`` separated
-    by ``;``, in JSONL an object). Relative paths are relative to the manifest's folder. A
-    malformed row becomes an item whose error names ``FILE:LINE``; overrides are checked against
-    ``base_config`` here, so a bad key is reported with its line too."""
+    sources leave the last ones unmasked), optional ``output`` (file name in the output folder, whose
+    extension sets the format; default :func:`output_name` of the target) and ``set`` (config
+    overrides: in CSV ``key=value`` separated by ``;``, in JSONL an object). Relative paths are
+    relative to the manifest's folder. A malformed row becomes an item whose error names
+    ``FILE:LINE``; overrides are checked against ``base_config`` here, so a bad key is reported
+    with its line too."""
     if not path.is_file():
         raise InputError(f"{path}: manifest not found")
     try:
@@ -164,7 +177,7 @@ def read_manifest(path: Path, base_config: FillConfig) -> list[BatchItem]:
     for line, row in rows:
         where = f"{path}:{line}"
         try:
-            items.append(_manifest_item(path.parent, where, row, base_config))
+            items.append(_manifest_item(path.parent, where, row, base_config, output_format))
         except GeoFillError as exc:
             items.append(
                 BatchItem(name=f"line{line}", target="", mask="", output="", where=where, error=str(exc))
@@ -234,7 +247,9 @@ def _jsonl_rows(path: Path, text: str) -> list[tuple[int, dict[str, Any]]]:
     return rows
 
 
-def _manifest_item(base: Path, where: str, row: dict[str, Any], base_config: FillConfig) -> BatchItem:
+def _manifest_item(
+    base: Path, where: str, row: dict[str, Any], base_config: FillConfig, output_format: str | None
+) -> BatchItem:
     if "__error__" in row:
         raise InputError(f"{where}: {row['__error__']}")
     for key in ("target", "mask"):
@@ -262,7 +277,7 @@ def _manifest_item(base: Path, where: str, row: dict[str, Any], base_config: Fil
         raise ConfigError(f"{where}: {exc}") from exc
     target = _resolve(base, row["target"])
     source_paths = [str(_resolve(base, s)) for s in sources]
-    output = row.get("output") or f"{target.stem}.png"
+    output = row.get("output") or output_name(target, output_format)
     if (
         not isinstance(output, str)
         or Path(output).name != output

@@ -5,7 +5,8 @@ Workers write the outputs (atomically, :func:`geofill.io.write_image_atomic`); t
 writes results.jsonl, one line per item as it finishes, so the file is never half a line and an
 item retried by Ray is recorded once. ``--resume`` keeps the records of items whose output is
 complete and runs the others. Ctrl-C and SIGTERM stop a batch the same way: workers terminated,
-every item that finished recorded, the summary printed.
+every item that finished recorded, the summary printed. A batch never writes into a folder that
+holds its inputs unless told to (``--overwrite``), and a stop removes only files this run created.
 """
 
 from __future__ import annotations
@@ -36,7 +37,7 @@ from ..errors import (
     OutputError,
     Terminated,
 )
-from ..io import remove_partial_writes
+from ..io import file_id, file_ids, remove_partial_writes, replace_durably
 from .display import BatchDisplay, summary_table
 from .items import BatchItem
 from .worker import (
@@ -44,6 +45,7 @@ from .worker import (
     STATUS_FAILED,
     STATUS_REFERENCE,
     STATUS_SINGLE_IMAGE,
+    OutputSpec,
     init_worker,
     run_item,
     run_item_on_ray,
@@ -57,6 +59,7 @@ RAY_MAX_RETRIES = 3
 
 Task = tuple[BatchItem, FillConfig]
 OnRecord = Callable[[dict[str, Any]], None]
+Execute = Callable[[Sequence[Task], OutputSpec, OnRecord], None]
 #: What stops a batch from outside: Ctrl-C, and SIGTERM (which the command line raises as Terminated).
 STOPPED = (KeyboardInterrupt, Terminated)
 
@@ -71,6 +74,9 @@ class BatchSettings:
     allow_fallback: bool = False
     ray: str | None = None  # "local", "auto" or a cluster address; None = local worker processes
     quiet: bool = False
+    quality: int | None = None  # of JPEG/WebP outputs; None: a JPEG target's own tables, else 95
+    strip_metadata: bool = False
+    overwrite: bool = False  # allow out_dir to be a folder that holds input files
 
 
 @dataclass(frozen=True)
@@ -105,11 +111,14 @@ def run_batch(
     """Fill every item, write ``{out_dir}/results.jsonl`` and print progress and the summary.
 
     A problem with one item is recorded and the batch goes on; Ctrl-C or SIGTERM stops it with the
-    finished items kept (their outputs and records), nothing half-written, and the summary printed."""
+    finished items kept (their outputs and records), nothing half-written, and the summary printed.
+    An ``out_dir`` that holds input files is refused (OutputError) unless ``settings.overwrite``."""
     stream = stream or sys.stderr
     if settings.jobs < 1:
         raise ConfigError(f"--jobs must be at least 1, got {settings.jobs}")
     out = settings.out_dir
+    if not settings.overwrite:
+        _check_inputs_spared(items, out)
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -125,9 +134,10 @@ def _run(
     base_config: FillConfig,
     settings: BatchSettings,
     stream: TextIO,
-    execute: Callable[[Sequence[Task], str, OnRecord], None],
+    execute: Execute,
 ) -> BatchOutcome:
     out = settings.out_dir
+    spec = OutputSpec(str(out), settings.quality, settings.strip_metadata)
     results = out / RESULTS_NAME
     kept = _complete_records(items, out, results) if settings.resume else {}
     _rewrite_results(results, list(kept.values()))
@@ -147,7 +157,7 @@ def _run(
 
         for item in todo:
             if item.error:  # nothing to run: recorded here, not sent to a worker
-                on_record(run_item(item, base_config, str(out)))
+                on_record(run_item(item, base_config, spec))
                 continue
             key = json.dumps(dict(item.overrides), sort_keys=True)
             if key not in configs:
@@ -156,7 +166,7 @@ def _run(
         t0 = time.perf_counter()
         stopped: BaseException | None = None
         try:
-            execute(tasks, str(out), on_record)
+            execute(tasks, spec, on_record)
         except STOPPED as exc:
             stopped = exc
         finally:
@@ -182,6 +192,31 @@ def _run(
         statuses, allow_fallback=settings.allow_fallback, interrupted=interrupted, terminated=terminated
     )
     return BatchOutcome(records, list(kept.values()), interrupted, code, elapsed)
+
+
+def _check_inputs_spared(items: Sequence[BatchItem], out: Path) -> None:
+    """Raise OutputError when ``out`` is a folder that holds an input file of ``items``: an output
+    of the same name would replace it (a target, with its format kept, always does). Folders are
+    compared as files (:func:`geofill.io.file_id`), both where a path names an input and where its
+    links lead."""
+    out_id = file_id(out)
+    if out_id is None:
+        return
+    # A set: with --sources DIR every item names every photo of the shoot as a candidate.
+    named = {
+        p
+        for item in items
+        for p in (item.target, item.mask, *item.sources, *item.candidates, *item.reference_masks.values())
+        if p
+    }
+    inputs = sorted(Path(p) for p in named)
+    folders = file_ids(f for p in inputs for f in (p.parent, p.resolve().parent))
+    if out_id in folders:
+        held = next(p for p in inputs if out_id in (file_id(p.parent), file_id(p.resolve().parent)))
+        raise OutputError(
+            f"{out}: the output folder holds input files ({held} among them) that the outputs can "
+            "replace; choose another --out, or give --overwrite to allow it"
+        )
 
 
 def _complete_records(items: Sequence[BatchItem], out: Path, results: Path) -> dict[str, dict[str, Any]]:
@@ -215,7 +250,7 @@ def _rewrite_results(results: Path, records: list[dict[str, Any]]) -> None:
     """Start results.jsonl with ``records`` (replaced atomically, so a crash keeps the old file)."""
     tmp = results.with_name(f".{results.name}.tmp")
     tmp.write_text("".join(json.dumps(r) + "\n" for r in records), encoding="utf-8")
-    os.replace(tmp, results)
+    replace_durably(tmp, results)
 
 
 @contextmanager
@@ -235,7 +270,7 @@ def _environment(values: dict[str, str]) -> Iterator[None]:
 
 
 @contextmanager
-def _executor(settings: BatchSettings) -> Iterator[Callable[[Sequence[Task], str, OnRecord], None]]:
+def _executor(settings: BatchSettings) -> Iterator[Execute]:
     """What runs the tasks: local worker processes, or Ray tasks in a Ray session open for the block."""
     if settings.ray is None:
         yield partial(_run_local, jobs=settings.jobs)
@@ -244,11 +279,13 @@ def _executor(settings: BatchSettings) -> Iterator[Callable[[Sequence[Task], str
         yield partial(_run_ray, ray)
 
 
-def _run_local(tasks: Sequence[Task], out_dir: str, on_record: OnRecord, *, jobs: int) -> None:
+def _run_local(tasks: Sequence[Task], out: OutputSpec, on_record: OnRecord, *, jobs: int) -> None:
     """``jobs`` spawned worker processes, one item each at a time. A worker that dies (killed, out
     of memory) fails the items in flight, which ``--resume`` runs again; the pool is replaced."""
     pending = list(reversed(tasks))
-    running: dict[Future, tuple[Task, float]] = {}  # and the wall-clock time (s) it went to a worker
+    # And whether this run creates its output: true when no file of that name existed as it went
+    # to a worker.
+    running: dict[Future, tuple[Task, bool]] = {}
     ctx = multiprocessing.get_context("spawn")  # fork would copy the parent's torch/OpenMP threads state
     with _environment(SINGLE_THREAD_ENV):
         pool = ProcessPoolExecutor(jobs, mp_context=ctx, initializer=init_worker)
@@ -256,7 +293,8 @@ def _run_local(tasks: Sequence[Task], out_dir: str, on_record: OnRecord, *, jobs
             while pending or running:
                 while pending and len(running) < jobs:
                     task = pending.pop()
-                    running[pool.submit(run_item, *task, out_dir)] = task, time.time()
+                    created = not (Path(out.folder) / task[0].output).exists()
+                    running[pool.submit(run_item, *task, out)] = task, created
                 done, _ = wait(running, return_when=FIRST_COMPLETED)
                 broken = False
                 for future in done:
@@ -265,35 +303,32 @@ def _run_local(tasks: Sequence[Task], out_dir: str, on_record: OnRecord, *, jobs
                         on_record(future.result())
                     except BrokenProcessPool:
                         broken = True
-                        on_record(
-                            _failed(item, cfg, out_dir, "a worker process died (killed or out of memory)")
-                        )
+                        on_record(_failed(item, cfg, out, "a worker process died (killed or out of memory)"))
                 if broken:
                     pool.shutdown(wait=True)
                     pool = ProcessPoolExecutor(jobs, mp_context=ctx, initializer=init_worker)
         except STOPPED:
             _terminate_workers(pool)
-            for future, ((item, _), since) in running.items():
+            for future, ((item, _), created) in running.items():
                 # Items that finished while the signal came: their outputs are written, record them.
                 if future.done() and not future.cancelled() and future.exception() is None:
                     on_record(future.result())
-                elif item.output:
-                    _remove_unrecorded(Path(out_dir) / item.output, since)
+                else:
+                    _remove_unrecorded(Path(out.folder) / item.output, created)
             raise
         pool.shutdown(wait=True)
 
 
-def _remove_unrecorded(output: Path, since: float) -> None:
+def _remove_unrecorded(output: Path, created: bool) -> None:
     """Remove what an item stopped in flight wrote: a worker killed mid-write leaves its temporary
     file, and one killed after its write but before its result reached this process leaves an
-    output (modified since the item started, ``since``: wall-clock s) that no record names, which
-    ``--resume`` would run again anyway."""
+    output that no record names, which ``--resume`` would run again anyway. That output is removed
+    only when this run ``created`` it (no file of its name existed before): a file that was there
+    (an earlier run's output, an input the user let the batch replace) is never deleted, and
+    modification times, which another process or a coarse clock can make lie, are not consulted."""
     remove_partial_writes(output)
-    try:
-        if output.stat().st_mtime >= since:
-            output.unlink()
-    except FileNotFoundError:
-        pass
+    if created:
+        output.unlink(missing_ok=True)
 
 
 def _terminate_workers(pool: ProcessPoolExecutor) -> None:
@@ -313,9 +348,9 @@ def _terminate_workers(pool: ProcessPoolExecutor) -> None:
             p.join()
 
 
-def _failed(item: BatchItem, cfg: FillConfig, out_dir: str, reason: str) -> dict[str, Any]:
+def _failed(item: BatchItem, cfg: FillConfig, out: OutputSpec, reason: str) -> dict[str, Any]:
     """The record of an item that no worker could finish."""
-    return run_item(replace(item, error=f"{item.where}: {reason}"), cfg, out_dir)
+    return run_item(replace(item, error=f"{item.where}: {reason}"), cfg, out)
 
 
 @contextmanager
@@ -343,13 +378,13 @@ def _ray_session(address: str, jobs: int) -> Iterator[Any]:
         ray.shutdown()
 
 
-def _run_ray(ray: Any, tasks: Sequence[Task], out_dir: str, on_record: OnRecord) -> None:
+def _run_ray(ray: Any, tasks: Sequence[Task], out: OutputSpec, on_record: OnRecord) -> None:
     """Every item as a Ray task (Ray schedules them and runs a task again when its worker dies);
     worker processes are reused between tasks, so imports and compiled kernels stay warm. Workers
     read the inputs from their paths and write the outputs themselves: the paths must be reachable
     from every node (a shared file system)."""
     remote = ray.remote(num_cpus=1, max_retries=RAY_MAX_RETRIES)(run_item_on_ray)
-    refs = {remote.remote(item, cfg, out_dir): (item, cfg) for item, cfg in tasks}
+    refs = {remote.remote(item, cfg, out): (item, cfg) for item, cfg in tasks}
     pending = list(refs)
     try:
         while pending:
@@ -359,7 +394,7 @@ def _run_ray(ray: Any, tasks: Sequence[Task], out_dir: str, on_record: OnRecord)
                     record = ray.get(ref)
                 except ray.exceptions.RayError as exc:  # retries used up
                     item, cfg = refs[ref]
-                    record = _failed(item, cfg, out_dir, f"Ray task failed: {str(exc).splitlines()[0]}")
+                    record = _failed(item, cfg, out, f"Ray task failed: {str(exc).splitlines()[0]}")
                 on_record(record)
     except STOPPED:
         for ref in pending:

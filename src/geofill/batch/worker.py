@@ -23,7 +23,15 @@ from ..composite.inpaint import get_inpainter
 from ..composite.merge import merge_fill
 from ..config import FillConfig
 from ..errors import GeoFillError, InputError
-from ..io import LoadedImage, read_image, read_mask, read_reference_mask, validate_pair, write_image_atomic
+from ..io import (
+    LOSSY_SUFFIXES,
+    LoadedImage,
+    read_image,
+    read_mask,
+    read_reference_mask,
+    validate_pair,
+    write_image_atomic,
+)
 from ..pipeline import fill_loaded
 from ..progress import Progress
 from .items import BatchItem
@@ -41,6 +49,17 @@ SINGLE_THREAD_ENV = {
 STATUS_REFERENCE = "reference"
 STATUS_SINGLE_IMAGE = "single_image"
 STATUS_FAILED = "failed"
+
+
+@dataclass(frozen=True)
+class OutputSpec:
+    """Where and how a batch writes its outputs (each item's file name is its own)."""
+
+    folder: str
+    #: JPEG/WebP quality (1-100) of the lossy outputs; None: a JPEG target's own quantisation
+    #: tables, else 95 (see :func:`geofill.io.write_image_atomic`).
+    quality: int | None = None
+    strip_metadata: bool = False  # True: no EXIF or ICC profile of the target in its output
 
 
 @dataclass(frozen=True)
@@ -134,8 +153,8 @@ def single_threaded() -> None:
     numba.set_num_threads(1)
 
 
-def run_item(item: BatchItem, cfg: FillConfig, out_dir: str) -> dict[str, Any]:
-    """Fill ``item`` with ``cfg`` into ``out_dir`` and return its record; never raises for a
+def run_item(item: BatchItem, cfg: FillConfig, out: OutputSpec) -> dict[str, Any]:
+    """Fill ``item`` with ``cfg`` into ``out.folder`` and return its record; never raises for a
     problem with the item itself (only for an interruption)."""
     t0 = time.perf_counter()
     prog = Progress(quiet=True)
@@ -144,7 +163,7 @@ def run_item(item: BatchItem, cfg: FillConfig, out_dir: str) -> dict[str, Any]:
         "where": item.where,
         "target": item.target,
         "mask": item.mask,
-        "output": str(Path(out_dir) / item.output) if item.output else "",
+        "output": str(Path(out.folder) / item.output) if item.output else "",
         "status": STATUS_FAILED,
         "references": [],  # every reference the fill was given (references_dropped: those it could not use)
         "references_dropped": [],
@@ -158,7 +177,7 @@ def run_item(item: BatchItem, cfg: FillConfig, out_dir: str) -> dict[str, Any]:
         record["candidates"] = []
     if not item.error:
         try:
-            _fill_item(item, cfg, record, prog)
+            _fill_item(item, cfg, out, record, prog)
         except GeoFillError as exc:
             record["error"] = str(exc)
         except Exception as exc:  # a fill that raises must not stop the batch: record it
@@ -174,13 +193,15 @@ def run_item(item: BatchItem, cfg: FillConfig, out_dir: str) -> dict[str, Any]:
     return record
 
 
-def run_item_on_ray(item: BatchItem, cfg: FillConfig, out_dir: str) -> dict[str, Any]:
+def run_item_on_ray(item: BatchItem, cfg: FillConfig, out: OutputSpec) -> dict[str, Any]:
     """:func:`run_item` as a Ray task: Ray workers are not set up by :func:`init_worker`."""
     single_threaded()
-    return run_item(item, cfg, out_dir)
+    return run_item(item, cfg, out)
 
 
-def _fill_item(item: BatchItem, cfg: FillConfig, record: dict[str, Any], prog: Progress) -> None:
+def _fill_item(
+    item: BatchItem, cfg: FillConfig, out: OutputSpec, record: dict[str, Any], prog: Progress
+) -> None:
     limits = {"max_pixels": cfg.max_pixels, "min_side": cfg.min_side_px}
     notices: list[str] = []
     with prog.stage("read"):
@@ -249,8 +270,12 @@ def _fill_item(item: BatchItem, cfg: FillConfig, record: dict[str, Any], prog: P
             f"no candidate reference has {cfg.geometry.min_inliers} verified matches near the hole "
             f"(best: {max(s['matches_near_hole'] for s in record['candidates'])})"
         ]
+    metadata = target.metadata.stripped() if out.strip_metadata else target.metadata
+    if metadata.note:
+        notices.append(f"{item.target}: {metadata.note}")
+    lossy = Path(item.output).suffix.lower() in LOSSY_SUFFIXES
     with prog.stage("write"):
-        write_image_atomic(record["output"], image)
+        write_image_atomic(record["output"], image, metadata=metadata, quality=out.quality if lossy else None)
     record.update(
         status=status,
         fallback_reason="; ".join(fallbacks) or None,

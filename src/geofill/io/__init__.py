@@ -7,7 +7,8 @@ with the file (or array) it is about.
 
 - :mod:`~geofill.io.images`: image and mask files, their EXIF lens tags and carried metadata.
 - :mod:`~geofill.io.arrays`: arrays at the API edge and the checks of one fill's inputs.
-- :mod:`~geofill.io.output`: output checks made before any work, and the atomic image write.
+- :mod:`~geofill.io.output`: output checks made before any work (an output must not be an
+  input), and the atomic, durable image write.
 - :mod:`~geofill.io.depth_files`: user-supplied depth maps.
 - :mod:`~geofill.io.reference_masks`: what must not be copied from each reference (its mask file,
   ``<stem>.mask.png`` beside it in a folder).
@@ -20,31 +21,46 @@ from .images import (
     INPUT_FORMATS,
     ExifCamera,
     ImageMetadata,
+    JpegTables,
     LoadedImage,
     read_image,
     read_mask,
 )
-from .output import check_output_dir, check_output_path, remove_partial_writes, write_image_atomic
+from .output import (
+    LOSSY_SUFFIXES,
+    check_output_dir,
+    check_output_path,
+    file_id,
+    file_ids,
+    remove_partial_writes,
+    replace_durably,
+    write_image_atomic,
+)
 from .reference_masks import is_reference_mask, read_reference_mask, split_reference_masks
 
 __all__ = [
     "IMAGE_SUFFIXES",
     "INPUT_FORMATS",
+    "LOSSY_SUFFIXES",
     "MASK_THRESHOLD",
     "ExifCamera",
     "ImageMetadata",
+    "JpegTables",
     "LoadedImage",
     "as_rgb_uint8",
     "as_source_mask",
     "as_unit_float",
     "check_output_dir",
     "check_output_path",
+    "file_id",
+    "file_ids",
     "is_reference_mask",
     "read_depth_file",
     "read_image",
     "read_mask",
     "read_reference_mask",
     "remove_partial_writes",
+    "replace_durably",
     "split_reference_masks",
     "validate_pair",
     "write_image_atomic",

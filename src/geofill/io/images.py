@@ -34,6 +34,7 @@ from PIL import (
     ExifTags,
     Image,
     ImageOps,
+    JpegImagePlugin,
     TiffImagePlugin,  # noqa: F401
     UnidentifiedImageError,
     WebPImagePlugin,  # noqa: F401
@@ -90,16 +91,33 @@ class ExifCamera:
 
 
 @dataclass(frozen=True)
+class JpegTables:
+    """How a JPEG file was encoded: its quantisation tables (64 values each, in Pillow's order, the
+    one ``Image.save(qtables=...)`` takes) and its chroma subsampling (Pillow's code: 0 = 4:4:4,
+    1 = 4:2:2, 2 = 4:2:0; -1 = the encoder's default), so that a JPEG output can be written at
+    the input's own quality rather than at a guessed one."""
+
+    qtables: tuple[tuple[int, ...], ...]
+    subsampling: int = -1
+
+
+@dataclass(frozen=True)
 class ImageMetadata:
     """What an output carries over from its input file: the EXIF block (orientation reset to 1,
-    since the pixels are delivered upright) and the ICC colour profile; None where absent.
-    ``note`` says why EXIF present in the file could not be carried (never dropped silently);
-    ``unread`` what Pillow warned it could not read in the file (a corrupt EXIF block, say)."""
+    since the pixels are delivered upright), the ICC colour profile and, for a JPEG, its encoding
+    tables; None where absent. ``note`` says why EXIF present in the file could not be carried
+    (never dropped silently); ``unread`` what Pillow warned it could not read in the file (a
+    corrupt EXIF block, say)."""
 
     exif: bytes | None = None
     icc_profile: bytes | None = None
     note: str | None = None
     unread: str | None = None
+    jpeg_tables: JpegTables | None = None
+
+    def stripped(self) -> ImageMetadata:
+        """The same without EXIF (GPS included) and ICC profile: only how the file was encoded."""
+        return ImageMetadata(jpeg_tables=self.jpeg_tables)
 
 
 @dataclass
@@ -186,7 +204,7 @@ def _read_raster(
             raise CorruptImageError(
                 f"{p}: cannot decode image, truncated or corrupt ({one_line(exc)})"
             ) from exc
-        metadata = _carried_metadata(img, exif, orientation)
+        metadata = replace(_carried_metadata(img, exif, orientation), jpeg_tables=_jpeg_tables(img))
     if heard:  # said once, as a note on the file, rather than as Python warnings
         said = "; ".join(dict.fromkeys(one_line(w.message) for w in heard))
         metadata = replace(metadata, unread=f"part of its metadata could not be read ({said})")
@@ -247,6 +265,15 @@ def _carried_metadata(img: Image.Image, exif: Image.Exif, orientation: int) -> I
         return ImageMetadata(exif=exif.tobytes(), icc_profile=icc)
     except (*DECODE_ERRORS, TypeError) as exc:  # a tag Pillow can read but not write back
         return ImageMetadata(icc_profile=icc, note=f"EXIF not carried: {one_line(exc)}")
+
+
+def _jpeg_tables(img: Image.Image) -> JpegTables | None:
+    """The quantisation tables and subsampling of an opened JPEG (None for other formats). A grey
+    JPEG has one table; its luma table serves the chroma of the RGB output too."""
+    if not isinstance(img, JpegImagePlugin.JpegImageFile) or not img.quantization:
+        return None
+    tables = tuple(tuple(img.quantization[k]) for k in sorted(img.quantization))
+    return JpegTables(tables if len(tables) > 1 else tables * 2, JpegImagePlugin.get_sampling(img))
 
 
 def _decode(img: Image.Image, path: Path, fh: IO[bytes]) -> np.ndarray:
