@@ -21,6 +21,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root: benchmarks.common
 from benchmarks.common import MULTIVIEW
+
 from geofill import FillConfig, fill
 from geofill.evaluation.metrics import psnr
 from geofill.evaluation.pairs import load_pair, pair_mask

@@ -25,8 +25,11 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
+
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root: benchmarks.common
 from benchmarks.common import PAIRS
+
 from geofill import FillConfig
 from geofill.evaluation.pairs import load_pair, pair_mask
 from geofill.match import match_pair
@@ -48,7 +51,9 @@ def scene(pair_id: str) -> str:
     return found[0]
 
 
-def counts(target, hole, source, cfg: FillConfig, rungs: list[str]) -> tuple[dict[str, int], dict[str, float]]:
+def counts(
+    target: np.ndarray, hole: np.ndarray, source: np.ndarray, cfg: FillConfig, rungs: list[str]
+) -> tuple[dict[str, int], dict[str, float]]:
     """Verified matches and seconds per rung, every rung in ``rungs`` forced to run."""
     forced = replace(
         cfg.matching,
@@ -92,7 +97,8 @@ def main(argv: list[str] | None = None) -> int:
             n, _ = counts(pair.target, hole, pair.source, cfg, rungs)
             pos.append((pair.id, seed, n))
             row = " | ".join(str(n[r]) for r in rungs)
-            print(f"| true | {pair.id} | same | {seed} | {row} | {'DROPPED' if dropped(n, early, threshold) else ''} |")
+            lost = "DROPPED" if dropped(n, early, threshold) else ""
+            print(f"| true | {pair.id} | same | {seed} | {row} | {lost} |", flush=True)
         others = [p for p in pairs[i + 1 :] + pairs[:i] if scene(p.id) != scene(pair.id)][: args.negatives]
         for other in others:
             hole = pair_mask(pair, 0)
@@ -100,8 +106,8 @@ def main(argv: list[str] | None = None) -> int:
             neg.append((pair.id, other.id, n))
             give_up_s.append(sum(t[r] for r in early))
             row = " | ".join(str(n[r]) for r in rungs)
-            print(f"| unrelated | {pair.id} | {other.id} | 0 | {row} | {'yes' if dropped(n, early, threshold) else 'CLIMBS'} |",
-                  flush=True)  # fmt: skip
+            given_up = "yes" if dropped(n, early, threshold) else "CLIMBS"
+            print(f"| unrelated | {pair.id} | {other.id} | 0 | {row} | {given_up} |", flush=True)
     print()
     for r in rungs:
         p = [n[r] for *_, n in pos]

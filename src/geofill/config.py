@@ -312,8 +312,8 @@ class MatchingConfig:
     )
     learned_max_keypoints: Annotated[int, Range(16, 100_000)] = setting(
         2048,
-        "``xfeat-lighterglue``: XFeat keypoints per image (the strongest); LighterGlue's cost grows with their "
-        "product.",
+        "``xfeat-lighterglue``: XFeat keypoints per image (the strongest); LighterGlue's cost grows with "
+        "their product.",
     )
     learned_threads: Annotated[int, Range(0, 256)] = setting(
         1,
