@@ -91,6 +91,14 @@ SECTIONS = [
         [PY, "benchmarks/quality/multiview_seeds.py", "--variant", "perpair:registration.joint=off"],
     ),
     Section(
+        "reference_order",
+        "The order of the references (`benchmarks/quality/reference_order.py`)",
+        "The Lund red car and the living room (the evaluation's seed-0 hole), filled with all references "
+        "listed in three orders: hole PSNR and the output's hash per order (one distinct output: the order "
+        "does not change the fill).",
+        [PY, "benchmarks/quality/reference_order.py"],
+    ),
+    Section(
         "multiview_graphcut",
         "Seams between references: graph cut (`geofill eval --methods geofill_graphcut`)",
         "As above with `fusion.seams=graphcut` (OpenCV graph-cut seams between the per-pixel winners) "
