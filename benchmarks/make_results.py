@@ -630,6 +630,7 @@ def stamp_derived() -> list[str]:
 def run_section(sec: Section, reuse: Path | None = None) -> str:
     """Run ``sec``'s command and format its result; with ``reuse``, a folder an earlier run of the
     same command wrote its results to, take them from there instead (for eval sections)."""
+    stamp = new_stamp(sec)  # the code as the command starts (it may change while it runs)
     with tempfile.TemporaryDirectory() as tmp:
         cmd = [c.replace("{out}", tmp) for c in sec.command]
         t0 = time.perf_counter()
@@ -645,12 +646,13 @@ def run_section(sec: Section, reuse: Path | None = None) -> str:
             body = (Path(tmp) / sec.result_file).read_text()
         else:
             body = proc.stdout
-    return format_section(sec, body, None if reuse is not None else took)
+    return format_section(sec, body, None if reuse is not None else took, stamp)
 
 
-def format_section(sec: Section, body: str, took: float | None) -> str:
+def format_section(sec: Section, body: str, took: float | None, stamp: str | None = None) -> str:
     """The markdown of section ``sec`` whose command printed (or wrote) ``body`` in ``took`` s
-    (None: taken from an earlier run of the command)."""
+    (None: taken from an earlier run of the command), stamped with ``stamp`` (:func:`new_stamp`;
+    by default the working tree's now)."""
     shown = " ".join(shlex.quote(c) for c in sec.command).replace(PY, ".venv/bin/python")
     shown = shown.replace(str(PAIRS), "../shared/data/pairs").replace("{out}", "OUT")
     shown = shown.replace(str(MULTIVIEW), "../shared/data/multiview")
@@ -659,7 +661,7 @@ def format_section(sec: Section, body: str, took: float | None) -> str:
     else:
         body = f"```\n{body.rstrip()}\n```"
     when = "results of an earlier run of this command" if took is None else f"took {took:.0f} s"
-    stamp = new_stamp(sec)
+    stamp = new_stamp(sec) if stamp is None else stamp
     when += f"; {stamp_words(parse_stamp(stamp))}"
     return f"<!-- section:{sec.name}{stamp} -->\n## {sec.title}\n\n{sec.about}\n\n```bash\n{shown}\n```\n\n" \
         f"{body.rstrip()}\n\n_({when})_\n<!-- end:{sec.name} -->\n"  # fmt: skip

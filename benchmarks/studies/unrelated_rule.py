@@ -2,7 +2,7 @@
 pair and on pairs of images from different DEV scenes, and the errors of the fill's give-up rule.
 
     .venv/bin/python benchmarks/studies/unrelated_rule.py [--seeds 0,1,2,3,4,5] [--negatives 2]
-        [--rungs sift,loose] [--save FILE | --load FILE]
+        [--rungs sift,loose] [--kinds true,unrelated] [--pairs A:B] [--save FILE | --load FILE ...]
 
 Positives: the 23 DEV pairs of ``../shared/data/pairs``, each with the evaluation's stroke holes
 (:func:`geofill.evaluation.pairs.pair_mask`, as ``geofill eval`` cuts them) of every seed.
@@ -14,7 +14,8 @@ tentative matches per rung; then the rule the ladder applies (:func:`geofill.mat
 another_scene` before each rung after :data:`~geofill.match.ladder.EARLY_RUNGS`, with the default
 configuration): the true pairs it drops, the unrelated pairs it lets climb, and the time it takes
 to give up on an unrelated reference (the rungs it ran). ``--save`` keeps the counts as JSON;
-``--load`` re-evaluates the rule on saved counts without matching again.
+``--load`` re-evaluates the rule on saved counts without matching again (``--pairs``
+and ``--kinds`` split the measurement into parts that can run at once).
 """
 
 from __future__ import annotations
@@ -70,22 +71,34 @@ def rung_reports(
     return list(m.rungs)
 
 
-def measure(seeds: list[int], negatives: int, rungs: list[str]) -> list[dict]:
+def measure(
+    seeds: list[int], negatives: int, rungs: list[str], kinds: set[str], which: slice, save: Path | None
+) -> list[dict]:
+    """Every case of the DEV pairs ``which`` (each appended to ``save`` as a JSON line when done)."""
     cfg = FillConfig()
     pairs = [load_pair(p) for p in sorted(PAIRS.iterdir()) if p.is_dir()]
-    cases = []
+    cases: list[dict] = []
+
+    def done(case: dict) -> None:
+        cases.append(case)
+        if save is not None:
+            with save.open("a") as f:
+                f.write(json.dumps(case) + "\n")
+
     for i, pair in enumerate(pairs):
-        for seed in seeds:
+        if i not in range(len(pairs))[which]:
+            continue
+        for seed in seeds if "true" in kinds else []:
             reports = rung_reports(pair.target, pair_mask(pair, seed), pair.source, cfg, rungs)
-            cases.append({"kind": "true", "target": pair.id, "reference": pair.id, "seed": seed,
-                          "rungs": [asdict(r) for r in reports]})  # fmt: skip
+            done({"kind": "true", "target": pair.id, "reference": pair.id, "seed": seed,
+                  "rungs": [asdict(r) for r in reports]})  # fmt: skip
             print(f"{pair.id} seed {seed}: " + ", ".join(f"{r.rung} {r.n_verified}" for r in reports),
                   file=sys.stderr, flush=True)  # fmt: skip
         others = [p for p in pairs[i + 1 :] + pairs[:i] if scene(p.id) != scene(pair.id)][:negatives]
-        for other in others:
+        for other in others if "unrelated" in kinds else []:
             reports = rung_reports(pair.target, pair_mask(pair, 0), other.source, cfg, rungs)
-            cases.append({"kind": "unrelated", "target": pair.id, "reference": other.id, "seed": 0,
-                          "rungs": [asdict(r) for r in reports]})  # fmt: skip
+            done({"kind": "unrelated", "target": pair.id, "reference": other.id, "seed": 0,
+                  "rungs": [asdict(r) for r in reports]})  # fmt: skip
     return cases
 
 
@@ -104,15 +117,18 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seeds", default="0,1,2,3,4,5")
     ap.add_argument("--negatives", type=int, default=2, help="unrelated references per DEV target")
     ap.add_argument("--rungs", default="sift,loose", help="rungs to run, in ladder order")
-    ap.add_argument("--save", type=Path, help="write the measured counts to this JSON file")
-    ap.add_argument("--load", type=Path, help="evaluate the rule on counts saved by --save")
+    ap.add_argument("--kinds", default="true,unrelated", help="which cases to measure")
+    ap.add_argument("--pairs", default=":", help="which DEV pairs (a Python slice of the sorted list)")
+    ap.add_argument("--save", type=Path, help="append each case's counts to this file (JSON lines)")
+    ap.add_argument("--load", type=Path, nargs="+", help="evaluate the rule on files written by --save")
     args = ap.parse_args(argv)
     if args.load:
-        cases = json.loads(args.load.read_text())
+        cases = [json.loads(line) for path in args.load for line in path.read_text().splitlines()]
     else:
-        cases = measure([int(s) for s in args.seeds.split(",")], args.negatives, args.rungs.split(","))
-        if args.save:
-            args.save.write_text(json.dumps(cases))
+        seeds = [int(s) for s in args.seeds.split(",")]
+        which = slice(*(int(x) if x else None for x in args.pairs.split(":")))
+        kinds = set(args.kinds.split(","))
+        cases = measure(seeds, args.negatives, args.rungs.split(","), kinds, which, args.save)
     cfg = FillConfig()
     rungs = [r["rung"] for r in cases[0]["rungs"]]
     limit = cfg.matching.unrelated_max_verified
