@@ -335,7 +335,7 @@ class MatchingConfig:
         "Long side (px) both images are resized to (at most) for the learned matcher.",
     )
     unrelated_max_verified: Annotated[int, Range(0, 1_000_000)] = setting(
-        15,
+        10,
         "A reference whose every rung so far (``sift``, and ``learned`` when it runs) verified fewer matches "
         "than this shows another scene: it is dropped at once instead of climbing the costly rungs (0: "
         "never). A fundamental matrix fits any 7 matches, so images of different scenes still verify a "
