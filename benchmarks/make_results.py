@@ -1,16 +1,27 @@
 """Regenerate docs/results.md: run every measurement and paste its output under its command.
 
     make results            # or: .venv/bin/python benchmarks/make_results.py [--only NAME,...]
+    make results-stale      # or: ... --stale: which sections predate the code they describe
 
 Every number in docs/results.md comes from one of the commands listed there; nothing is typed in by
 hand. Decisions drawn from these numbers are explained in docs/architecture.md. Takes a while (the
 eval runs every method and ablation on every pair); ``--only`` regenerates some sections and keeps
 the others from the previous file.
+
+Every section is stamped with the revision (git short hash, "+ uncommitted changes" where the code
+it ran differed from it) and the date it was generated, and a digest of the code it depends on
+(:func:`dependencies`: ``src/geofill``, ``benchmarks/common.py`` and the scripts its command names).
+``--stale`` lists the sections whose code changed since (their digest, or for a stamp without one
+the files changed since its revision), with what each took to generate; ``--only stale`` reruns them.
+``--stamp-derived`` stamps sections that have no stamp with the commit that last changed their text
+in docs/results.md (``git blame``), marked as derived: what code produced them is not known.
 """
 
 from __future__ import annotations
 
 import argparse
+import datetime
+import hashlib
 import re
 import shlex
 import subprocess
@@ -78,6 +89,14 @@ SECTIONS = [
         "are at least as good; the default registers them jointly (`registration.joint=auto`, the `sfm` "
         "extra); `perpair` registers each reference with the target alone (`registration.joint=off`).",
         [PY, "benchmarks/quality/multiview_seeds.py", "--variant", "perpair:registration.joint=off"],
+    ),
+    Section(
+        "reference_order",
+        "The order of the references (`benchmarks/quality/reference_order.py`)",
+        "The Lund red car and the living room (the evaluation's seed-0 hole), filled with all references "
+        "listed in three orders: hole PSNR and the output's hash per order (one distinct output: the order "
+        "does not change the fill).",
+        [PY, "benchmarks/quality/reference_order.py"],
     ),
     Section(
         "multiview_graphcut",
@@ -471,9 +490,147 @@ SECTIONS = [
 ]
 
 
+#: Paths (relative to the repository) every section's numbers depend on, besides its own scripts.
+CODE = ("src/geofill", "benchmarks/common.py")
+#: A section's start marker, with its stamp: ``rev=`` (short hash), ``date=``, then ``code=`` (the
+#: digest of its dependencies) or ``derived`` (rev and date from docs/results.md's history).
+MARKER = re.compile(r"<!-- section:(?P<name>\w+)(?P<stamp>(?: [\w=+.-]+)*) -->")
+
+
+def git(*args: str) -> str:
+    return subprocess.run(["git", *args], cwd=ROOT, capture_output=True, text=True, check=True).stdout
+
+
+def dependencies(sec: Section) -> list[str]:
+    """The paths whose change makes ``sec``'s numbers stale: the package, the shared helpers, and
+    every benchmark script its command runs."""
+    return [*CODE, *(c for c in sec.command if c.startswith("benchmarks/") and c.endswith(".py"))]
+
+
+def code_digest(paths: list[str]) -> str:
+    """A digest of the working tree's files under ``paths`` (tracked and untracked, not ignored)."""
+    h = hashlib.sha256()
+    for name in sorted(git("ls-files", "-co", "--exclude-standard", "--", *paths).split("\n")):
+        if name and (ROOT / name).is_file():
+            h.update(name.encode() + b"\0" + hashlib.sha256((ROOT / name).read_bytes()).digest())
+    return h.hexdigest()[:16]
+
+
+def new_stamp(sec: Section) -> str:
+    """The stamp of a section generated now from this working tree."""
+    rev = git("rev-parse", "--short", "HEAD").strip()
+    if git("status", "--porcelain", "--", *dependencies(sec)).strip():
+        rev += "+uncommitted"
+    return f" rev={rev} date={datetime.date.today().isoformat()} code={code_digest(dependencies(sec))}"
+
+
+def parse_stamp(stamp: str) -> dict[str, str]:
+    """``" rev=abc date=2026-01-01 code=..."`` -> {"rev": "abc", ...}; ``derived`` maps to ""."""
+    return dict((*item.split("=", 1), "")[:2] for item in stamp.split())
+
+
+def stamp_words(stamp: dict[str, str]) -> str:
+    """How a section's stamp reads under it."""
+    if not stamp:
+        return "generated at an unknown revision"
+    rev = stamp["rev"].replace("+uncommitted", " with uncommitted changes")
+    if "derived" in stamp:
+        return (
+            f"generated at an unknown revision: its text last changed in {rev} on {stamp['date']} "
+            "(git blame of docs/results.md)"
+        )
+    return f"generated at {rev} on {stamp['date']}"
+
+
+def staleness(sec: Section, stamp: dict[str, str]) -> str:
+    """Why section ``sec`` with ``stamp`` predates the code it describes ("" when it does not)."""
+    if not stamp:
+        return "no stamp: unknown revision"
+    deps = dependencies(sec)
+    if "code" in stamp and stamp["code"] == code_digest(deps):
+        return ""
+    rev = stamp["rev"].split("+")[0]
+    try:
+        changed = [f for f in git("diff", "--name-only", rev, "--", *deps).split("\n") if f]
+    except subprocess.CalledProcessError:
+        return f"revision {rev} not in this repository"
+    if "code" in stamp:  # the digest differs: the code changed, whatever the diff against rev says
+        return f"code changed since {stamp['rev']}" + (f" ({_files(changed)})" if changed else "")
+    return f"{_files(changed)} changed since {rev}" if changed else ""
+
+
+def _files(names: list[str]) -> str:
+    return f"{len(names)} file(s): {', '.join(names[:4])}{', ...' if len(names) > 4 else ''}"
+
+
+def sections_in(text: str) -> dict[str, tuple[dict[str, str], str]]:
+    """Per section in docs/results.md's ``text``: its stamp and its whole text."""
+    out = {}
+    for m in MARKER.finditer(text):
+        name = m.group("name")
+        end = text.find(f"<!-- end:{name} -->\n", m.end())
+        if end >= 0:
+            out[name] = (parse_stamp(m.group("stamp")), text[m.start() : end + len(f"<!-- end:{name} -->\n")])
+    return out
+
+
+def stale_report() -> list[str]:
+    """One line per section whose numbers predate the code they depend on, with their cost."""
+    found = sections_in(OUT.read_text() if OUT.exists() else "")
+    lines = []
+    for sec in SECTIONS:
+        stamp, text = found.get(sec.name, ({}, ""))
+        why = staleness(sec, stamp) if text else "not run yet"
+        if why:
+            took = re.search(r"_\(took (\d+) s", text)
+            cost = f"took {took.group(1)} s" if took else "cost unknown"
+            lines.append(f"{sec.name}: {why}; {stamp_words(stamp)}; {cost}")
+    return lines
+
+
+def derived_stamp(name: str) -> str:
+    """For an unstamped section: the newest commit among the lines of its text in docs/results.md
+    at HEAD (``git blame``), as ``rev=... date=... derived``."""
+    rel = str(OUT.relative_to(ROOT))
+    lines = git("show", f"HEAD:{rel}").split("\n")
+    start = next(i for i, line in enumerate(lines) if line.startswith(f"<!-- section:{name}"))
+    end = next(i for i, line in enumerate(lines) if line == f"<!-- end:{name} -->")
+    blame = git("blame", "--porcelain", "-L", f"{start + 1},{end + 1}", "HEAD", "--", rel)
+    newest, when, sha = 0, 0, ""
+    for line in blame.split("\n"):
+        if re.match(r"^[0-9a-f]{40} ", line):
+            sha = line[:40]
+        elif line.startswith("committer-time ") and int(line.split()[1]) > when:
+            newest, when = sha, int(line.split()[1])
+    date = datetime.datetime.fromtimestamp(when, datetime.UTC).date().isoformat()
+    return f" rev={git('rev-parse', '--short', newest).strip()} date={date} derived"
+
+
+def stamp_derived() -> list[str]:
+    """Stamp every section of docs/results.md that has no stamp with :func:`derived_stamp`."""
+    text = OUT.read_text()
+    done = []
+    for name, (stamp, body) in sections_in(text).items():
+        if stamp:
+            continue
+        derived = derived_stamp(name)
+        rest = body.split("\n", 1)[1]
+        words = stamp_words(parse_stamp(derived))
+        rest = re.sub(
+            r"\n(_\((?:took \d+ s|results of an earlier run of this command))\)_\n",
+            rf"\n\1; {words})_\n",
+            rest,
+        )
+        text = text.replace(body, f"<!-- section:{name}{derived} -->\n{rest}")
+        done.append(f"{name}:{derived}")
+    OUT.write_text(text)
+    return done
+
+
 def run_section(sec: Section, reuse: Path | None = None) -> str:
     """Run ``sec``'s command and format its result; with ``reuse``, a folder an earlier run of the
     same command wrote its results to, take them from there instead (for eval sections)."""
+    stamp = new_stamp(sec)  # the code as the command starts (it may change while it runs)
     with tempfile.TemporaryDirectory() as tmp:
         cmd = [c.replace("{out}", tmp) for c in sec.command]
         t0 = time.perf_counter()
@@ -489,12 +646,13 @@ def run_section(sec: Section, reuse: Path | None = None) -> str:
             body = (Path(tmp) / sec.result_file).read_text()
         else:
             body = proc.stdout
-    return format_section(sec, body, None if reuse is not None else took)
+    return format_section(sec, body, None if reuse is not None else took, stamp)
 
 
-def format_section(sec: Section, body: str, took: float | None) -> str:
+def format_section(sec: Section, body: str, took: float | None, stamp: str | None = None) -> str:
     """The markdown of section ``sec`` whose command printed (or wrote) ``body`` in ``took`` s
-    (None: taken from an earlier run of the command)."""
+    (None: taken from an earlier run of the command), stamped with ``stamp`` (:func:`new_stamp`;
+    by default the working tree's now)."""
     shown = " ".join(shlex.quote(c) for c in sec.command).replace(PY, ".venv/bin/python")
     shown = shown.replace(str(PAIRS), "../shared/data/pairs").replace("{out}", "OUT")
     shown = shown.replace(str(MULTIVIEW), "../shared/data/multiview")
@@ -503,7 +661,9 @@ def format_section(sec: Section, body: str, took: float | None) -> str:
     else:
         body = f"```\n{body.rstrip()}\n```"
     when = "results of an earlier run of this command" if took is None else f"took {took:.0f} s"
-    return f"<!-- section:{sec.name} -->\n## {sec.title}\n\n{sec.about}\n\n```bash\n{shown}\n```\n\n" \
+    stamp = new_stamp(sec) if stamp is None else stamp
+    when += f"; {stamp_words(parse_stamp(stamp))}"
+    return f"<!-- section:{sec.name}{stamp} -->\n## {sec.title}\n\n{sec.about}\n\n```bash\n{shown}\n```\n\n" \
         f"{body.rstrip()}\n\n_({when})_\n<!-- end:{sec.name} -->\n"  # fmt: skip
 
 
@@ -514,8 +674,24 @@ def main(argv: list[str] | None = None) -> int:
         "--reuse", action="append", default=[], metavar="NAME=DIR",
         help="take section NAME's result file from DIR, where its command already wrote it",
     )  # fmt: skip
+    ap.add_argument(
+        "--stale", action="store_true", help="list the sections older than their code; run nothing"
+    )
+    ap.add_argument(
+        "--stamp-derived", action="store_true",
+        help="stamp unstamped sections with the commit that last changed their text (marked derived)",
+    )  # fmt: skip
     args = ap.parse_args(argv)
+    if args.stamp_derived:
+        print("\n".join(stamp_derived()))
+    if args.stale:
+        lines = stale_report()
+        print("\n".join(lines) + f"\n{len(lines)} of {len(SECTIONS)} sections are stale")
+    if args.stale or args.stamp_derived:
+        return 0
     reuse = dict(item.split("=", 1) for item in args.reuse)
+    if args.only == "stale":
+        args.only = ",".join(line.split(":", 1)[0] for line in stale_report())
     wanted = args.only.split(",") if args.only else [s.name for s in SECTIONS]
     unknown = set(wanted) - {s.name for s in SECTIONS}
     if unknown:
@@ -533,20 +709,20 @@ def main(argv: list[str] | None = None) -> int:
 def write(name: str, text: str) -> None:
     """Replace section ``name`` of docs/results.md with ``text``; every other section is kept as the
     file has it now (so separate ``--only`` runs can update different sections)."""
-    old = OUT.read_text() if OUT.exists() else ""
+    found = sections_in(OUT.read_text() if OUT.exists() else "")
     parts = [
         "# Results\n\nGenerated by `make results` (benchmarks/make_results.py) on this project's 2-core CPU "
         "machine; the real pairs are `../shared/data/pairs` (23 DEV pairs; older sections say when they ran "
         "on the first 18). Each section shows the command "
-        "that produced it. Why the defaults are what they are: docs/architecture.md.\n"
+        "that produced it, and the revision and date it was generated at (`make results-stale` lists the "
+        "sections whose code changed since). Why the defaults are what they are: docs/architecture.md.\n"
     ]
     for sec in SECTIONS:
         if sec.name == name:
             parts.append(text)
             continue
-        m = re.search(rf"<!-- section:{sec.name} -->.*?<!-- end:{sec.name} -->\n", old, re.S)
         stub = f"<!-- section:{sec.name} -->\n## {sec.title}\n\n(not run yet)\n<!-- end:{sec.name} -->\n"
-        parts.append(m.group(0) if m else stub)
+        parts.append(found[sec.name][1] if sec.name in found else stub)
     OUT.write_text("\n".join(parts))
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import re
 import sys
 import typing
 from pathlib import Path
@@ -274,3 +275,25 @@ def test_patchmatch_without_the_extra_names_it(monkeypatch):
     monkeypatch.setitem(sys.modules, "patchmatch", None)
     with pytest.raises(MissingExtraError, match=r'PatchMatch inpainting needs .*"geofill\[patchmatch\]"'):
         get_inpainter(InpaintConfig(method="patchmatch"))
+
+
+#: What a measurement's history looks like in a description: a dB figure, a before -> after pair of
+#: numbers, a DEV set or a scene of it, "(was N)", a benchmark script, a speed-up factor.
+_HISTORY = re.compile(
+    r"\d\s*dB\b|[\d)]\s*(->|→)\s*[\d(]|\bDEV\b|\bwas \d|benchmarks/|\d(\.\d+)?x (faster|slower)|"
+    r"\b(fox|tower|berlin|lund|livingroom|living room|apple|kitti|eth3d|terrace|facade|cyprus|red car)\b",
+    re.IGNORECASE,
+)
+
+
+def test_config_descriptions_say_what_a_setting_does_not_its_measurements():
+    """The page shows every description to users: measurements and their history belong in
+    docs/architecture.md, not in a setting's help."""
+    found = {}
+    for top in dataclasses.fields(FillConfig):
+        section = typing.get_type_hints(FillConfig)[top.name]
+        leaves = dataclasses.fields(section) if dataclasses.is_dataclass(section) else [top]
+        for f in leaves:
+            if m := _HISTORY.search(f.metadata["help"]):
+                found[f"{top.name}.{f.name}"] = m.group(0)
+    assert found == {}

@@ -137,8 +137,7 @@ _FOCAL_MAX_UNCERTAINTY = (
     "The estimate is used only if its uncertainty (1-sigma of log focal) is at most this and at most "
     "``max_uncertainty_ratio`` times the prior's; otherwise the focal is unobservable from this pair (e.g. "
     "parallel optical axes: stereo, pure sideways or forward motion; few matches) and the prior is kept, "
-    "with the reason in the report. 0.25 turned away the two estimates that were 32 % off or unverifiable "
-    "on the DEV pairs (+-44 %, +-32 %)."
+    "with the reason in the report."
 )
 
 
@@ -168,7 +167,7 @@ class IntrinsicsConfig:
         "Focal-length estimation from the pair, after matching and before the pose (see "
         ":mod:`geofill.focal`): ``none`` keeps the prior (flag, EXIF or default: the paper's setting); "
         "``search`` profiles the robust Sampson cost of the best essential matrix over a focal scale "
-        "(default: best on the GT-pose pairs and synthetic scenes, benchmarks/studies/focal_bench.py); "
+        "(the default); "
         "``bougnoux`` is the closed form from F; ``auto`` combines the two. Focal lengths given by a flag "
         "are never estimated; an EXIF focal is a prior the estimate may move within its uncertainty.",
     )
@@ -184,7 +183,7 @@ class IntrinsicsConfig:
     )
     prior_sigma_exif: Annotated[float, Range(0, 10, lo_open=True)] = setting(
         0.05,
-        "Prior 1-sigma of log(focal) for an EXIF focal (phones' EXIF is usually right to a few %). Below "
+        "Prior 1-sigma of log(focal) for an EXIF focal. Below "
         "``model_error``, so by default the pair cannot move an EXIF focal: the estimate checks it (report) "
         "and takes over only where EXIF is absent, or trusted less than this.",
     )
@@ -195,13 +194,12 @@ class IntrinsicsConfig:
         25.0,
         "The search reads its Sampson cost as a Gaussian likelihood of the focal with the information "
         "divided by this: SIFT positions carry correlated errors (localisation bias), so the formal "
-        "likelihood is overconfident (25: the standard deviation x5).",
+        "likelihood is overconfident (25 widens its standard deviation five times).",
     )
     model_error: Annotated[float, Range(0, 1)] = setting(
         0.1,
         "Relative focal error (1 sigma) the pair can never beat: what lens distortion, an off-centre "
-        "principal point or a rolling shutter leave. Estimates on the GT pairs were 0-16 % off where more "
-        "than 70 matches (benchmarks/studies/focal_bench.py).",
+        "principal point or a rolling shutter leave.",
     )
     search_max_matches: Annotated[int, Range(8, 100_000), COSTLY] = setting(
         2000,
@@ -240,8 +238,7 @@ _ASIFT_RUNG = (
 _GUIDED_RUNG = (
     "``guided`` rung: half-width (px at the working resolution) of the epipolar band a match must fall in, "
     "and the ratio threshold between the two best candidates inside it. Not looser than plain SIFT's: a "
-    "wrong match on its epipolar line passes F verification by construction (0.9 gave 142 verified matches "
-    "on a rendered 33-degree orbit, 77 % right; 0.8: 93, 96 %)."
+    "wrong match on its epipolar line passes F verification by construction."
 )
 
 
@@ -283,8 +280,7 @@ class MatchingConfig:
     time_budget_s: Annotated[float, Range(0.0, 86_400.0), COSTLY] = setting(
         30.0,
         "The ladder starts no new rung after this many seconds (ASIFT also stops between its simulated "
-        "views). 30 s: room for SIFT, the loose rung and most of ASIFT's views at the working size on 2 "
-        "cores, under the depth and optimisation stages' time of a wide pair.",
+        "views).",
     )
     min_verified: Annotated[int, Range(0, 1_000_000)] = setting(
         30,
@@ -318,27 +314,22 @@ class MatchingConfig:
     learned_cross_check: bool = setting(
         False,
         "Run the ``learned`` rung also when SIFT's geometry verified, and keep whichever geometry more "
-        "matches around the hole support (calibrated with the focal prior; the report says why). Off by "
-        "default: on the 23 DEV pairs it gave the same fills as the default ladder, which already re-checks "
-        "a suspicious SIFT geometry (mean hole PSNR 16.40 dB either way), at 0.8-5.9 CPU s more per pair "
-        "(median 1.1; benchmarks/quality/wide_results.py).",
+        "matches around the hole support (calibrated with the focal prior; the report says why). Costs a "
+        "learned match per reference; without it the ladder still re-checks a suspicious SIFT geometry "
+        "(``learned_suspicious_fraction``).",
     )
     learned_suspicious_fraction: Annotated[float, Range(0.0, 1.0)] = setting(
         0.7,
         "SIFT's verified geometry is suspicious when fewer than this fraction of its verified matches fit an "
         "essential matrix at the focal prior times 0.6-1.7 (repeated texture: matches whole periods apart "
         "fit a wrong fundamental matrix); the ``learned`` rung then re-checks it with "
-        "``learned_recheck_max_keypoints`` and the better-supported geometry is kept (0: never). Measured "
-        "on the 23 DEV pairs with the hole blanked: 0.49 on the fox's wallpaper pair (55.8 deg pose error), "
-        "0.84-1.00 on the 21 others where SIFT verifies.",
+        "``learned_recheck_max_keypoints`` and the better-supported geometry is kept (0: never).",
     )
     learned_recheck_max_keypoints: Annotated[int, Range(16, 100_000), COSTLY] = setting(
         4096,
         "``xfeat-lighterglue``: XFeat keypoints per image when the learned rung re-checks a suspicious SIFT "
-        "geometry. On the fox pair in a fill (hole blanked) 2048 did not recover the geometry even with the "
-        "true focal (61 deg), 4096 did (0.65 deg with the true focal, 9.9 deg with the default prior), at "
-        "1.2-2.8 CPU s per wide pair instead of 0.6-1.1 (benchmarks/studies/learned_plane_twins.py, "
-        "benchmarks/speed/learned_rung.py).",
+        "geometry (more than ``learned_max_keypoints``: repeated texture needs them; the cost grows with "
+        "their product).",
     )
     learned_matcher: Literal["xfeat-lighterglue", "onnx"] = setting(
         "xfeat-lighterglue",
@@ -349,24 +340,18 @@ class MatchingConfig:
     )
     learned_max_keypoints: Annotated[int, Range(16, 100_000), COSTLY] = setting(
         2048,
-        "``xfeat-lighterglue``: XFeat keypoints per image (the strongest). 1024 lost the fox pair's geometry "
-        "(49 deg rotation error with the true K, hole not blanked; 2048: 1.2 deg); LighterGlue's cost grows "
-        "with their product.",
+        "``xfeat-lighterglue``: XFeat keypoints per image (the strongest); LighterGlue's cost grows with "
+        "their product.",
     )
     learned_threads: Annotated[int, Range(0, 256), COSTLY_ZERO_MOST] = setting(
         1,
         "``xfeat-lighterglue``: torch threads the learned matcher runs with (0: torch's default, one per "
-        "core). One: on a 2-core machine shared with other processes, two threads that wait for each "
-        "other cost about 5x the CPU and wall time (benchmarks/speed/learned_rung.py).",
+        "core).",
     )
     learned_confidence: Annotated[float, Range(-1.0, 1.0)] = setting(
         0.95,
         "``xfeat-lighterglue``: LightGlue's confidence for its early exit (fewer layers) and its pruning of "
-        "points that will not match (-1: neither). 0.9 is faster (fox 4096-keypoint re-check 2.4 -> 1.9 CPU "
-        "s; rotation with the true K 1.2 -> 0.3 deg; other wide pairs within 0.5 deg, "
-        "benchmarks/studies/learned_plane_twins.py --budgets 4096@1024/0.9 4096@1024/0.95) but its 7 more "
-        "verified matches move the fox's focal estimate from the prior to x0.78 in a fill (rotation 9.9 -> "
-        "20 deg), so 0.95 stays.",
+        "points that will not match (-1: neither); lower is faster and keeps fewer matches.",
     )
     learned_model: LocalPath | None = setting(
         None,
@@ -378,11 +363,11 @@ class MatchingConfig:
         "Long side (px) both images are resized to (at most) for the learned matcher.",
     )
     unrelated_max_verified: Annotated[int, Range(0, 1_000_000)] = setting(
-        15,
+        10,
         "A reference whose every rung so far (``sift``, and ``learned`` when it runs) verified fewer matches "
         "than this shows another scene: it is dropped at once instead of climbing the costly rungs (0: "
-        "never). Measured on the DEV pairs: 0-11 verified SIFT matches between 16 pairs of different "
-        "scenes, at least 20 in every true pair.",
+        "never). A fundamental matrix fits any 7 matches, so images of different scenes still verify a "
+        "few by chance; a higher limit drops wide true pairs.",
     )
     download: DownloadSwitch = setting(
         False,
@@ -421,8 +406,7 @@ class GeometryConfig:
     )
     fit_space: Literal["depth", "inverse"] = setting(
         "inverse",
-        "Space of the affine depth fit. Inverse depth measured better on the GT-depth pairs "
-        "(benchmarks/studies/depth_fit_space.py; docs/results.md) whatever the backend's native space.",
+        "Space of the affine depth fit, whatever the backend's native space.",
     )
 
 
@@ -501,7 +485,7 @@ _WEIGHT_MAP_SWITCHES = "Weight-map switches (the paper's W ablation); both off =
 _CANNY_THRESHOLDS = (
     "Canny hysteresis thresholds per blurred image (the paper gives none): the high one is this percentile "
     "of its gradient magnitude over known pixels, the low one ``canny_low_ratio`` times it (fixed "
-    "thresholds found 0.4 % to 34 % edge pixels on the dev pairs, whatever their contrast)."
+    "thresholds would find few or many edges depending on the image's contrast)."
 )
 _BARRON_LOSS = "Barron's general robust loss for L_feat: shape alpha and scale c (paper: -2 and 10 px)."
 _PAPER_CONVERGENCE = "``paper`` solver: convergence threshold eps_opt and window m of the supplement's test."
@@ -560,9 +544,8 @@ class OptimizeConfig:
     )
     max_side: Annotated[int, Range(32, 16384), COSTLY] = setting(
         640,
-        "Long side (px) of the finest level; the working images are downsized to it when larger. The paper "
-        "optimises at 1280 px; 640 gave the same mean hole PSNR on the 23 DEV pairs (19.06 dB, no pair "
-        "worse by more than 0.19 dB) with the stage 1.3-3.8x faster (docs/architecture.md).",
+        "Long side (px) of the finest level; the working images are downsized to it when larger (the paper "
+        "optimises at 1280 px).",
     )
     paper_lr: Annotated[float, Range(0, 10, lo_open=True)] = setting(
         1e-2,
@@ -581,9 +564,7 @@ class OptimizeConfig:
     ] = setting(
         [30, 20, 12, 4],
         "``fast`` solver: Levenberg-Marquardt iterations per level, coarse to fine. The finest level starts "
-        "where the coarser ones converged: 4 steps there (was 8) gave the same hole PSNR over 3 mask seeds "
-        "x 23 DEV pairs (mean change +0.001 dB, none beyond 0.05 dB) and cut the stage on berlin_01_02 from "
-        "0.38 to 0.28 s (objective equal to 4 digits).",
+        "where the coarser ones converged, so it needs few steps.",
     )
     fast_ftol: Annotated[float, Range(0, 1)] = setting(
         1e-6,
@@ -607,8 +588,7 @@ class OptimizeConfig:
     threads: Annotated[int, Range(1, 256), COSTLY] = setting(
         1,
         "BLAS (and, for the paper solver, torch) threads while optimising (restored afterwards). The work "
-        "is many small memory-bound operations: 2 torch threads were 13x slower than 1 with the 2 cores "
-        "shared by other jobs.",
+        "is many small memory-bound operations, which more threads slow down on a shared machine.",
     )
     refine_focal: bool = setting(
         False,
@@ -665,9 +645,7 @@ class RefineConfig:
     max_side: Annotated[int, Range(32, 16384), COSTLY] = setting(
         640,
         "Long side (px) of the image-equivalent resolution at which flow and colour fields are estimated; "
-        "they are applied at the input resolution. 640 (was 1280): over 3 mask seeds x 23 DEV pairs the "
-        "hole PSNR moved by +0.000 dB on average (sd 0.07, worst -0.17) and the stage took 0.21 instead of "
-        "0.52 s on berlin_01_02 (docs/architecture.md).",
+        "they are applied at the input resolution.",
     )
     flow_preset: Literal["ultrafast", "fast", "medium"] = setting("fast", "DIS preset (speed/accuracy).")
     flow_max_px: Annotated[float, Range(0, 1e4, lo_open=True)] = setting(24.0, _FLOW_TRUST)
@@ -718,7 +696,7 @@ class InpaintConfig:
         4.0,
         '"exemplar": Gaussian scale (px) below which the fill is the exemplars\' and above which it is '
         "Telea's diffusion (large-scale structure from diffusion, texture from exemplars); 0: exemplars only "
-        "(most texture, lower hole PSNR; measured in docs/architecture.md).",
+        "(most texture, lower hole PSNR).",
     )
     lama_model: LocalPath | None = setting(
         None,
@@ -749,8 +727,7 @@ class FusionConfig:
         "feather",
         'How references\' regions meet: "feather" (per-pixel best reference, blended over ``feather_px``), '
         '"graphcut" (OpenCV\'s colour-gradient graph-cut seams between the overlapping references, then the '
-        'same feather) or "blend" (score-weighted average). On the 7 multi-reference DEV sets feather gave '
-        "the best mean hole PSNR (benchmarks: docs/results.md).",
+        'same feather) or "blend" (score-weighted average).',
     )
     blend_power: Annotated[float, Range(0, 16)] = setting(
         2.0,
@@ -828,10 +805,7 @@ class FusionConfig:
         "With several references, a reference is not copied where its render differs from the target on the "
         "ring next to the pixel (mean absolute difference, 0-255, spread as for the score) by more than this "
         "plus ``ring_texture_factor`` times the ring's own texture; what no reference may supply is painted. "
-        "0: off. All references, mask seeds 0-2, off -> 15: DEV-MV restoration 22.63 -> 22.65 dB (at "
-        "least as good as the best single reference on 6/7 sets instead of 5/7; seeds 3-5: 21.10 -> "
-        "21.15, 5/7 both), strangers 17.90 -> 18.10 dB (leak 0.116 -> 0.108), static object removal "
-        "20.34 -> 20.30 dB (leak 0.029 both); docs/architecture.md.",
+        "0: off.",
     )
     ring_texture_factor: Annotated[float, Range(0, 100)] = setting(
         1.0,
@@ -847,8 +821,7 @@ class FusionConfig:
     )
     parallel: Annotated[int, Range(1, 64), COSTLY] = setting(
         2,
-        "References processed at once (threads); 1 runs them one after the other. 2 on 2 cores: three "
-        "1280x720 references 10.7 -> 8.2 s, two 8.0 -> 5.5 s (benchmarks/speed/multiref.py).",
+        "References processed at once (threads); 1 runs them one after the other.",
     )
 
 
@@ -863,9 +836,7 @@ class RegistrationConfig:
         "deterministic) after the per-pair focal and pose, and use its focal and pose for each reference "
         "it places whose own matches agree (``min_agreement``); the others keep the per-pair ones. "
         "Without the extra the fill says so in the stage's line and registers per pair. off: per-pair "
-        "registration only. DEV-MV, all references, mask seeds 0-2: restoration 21.89 (off) -> 22.63 dB "
-        "(auto); static object removal (3 posed sets + 3 rendered) 20.31 -> 20.34 dB, leak 0.029 both; "
-        "strangers (7 sets) 17.83 -> 17.90 dB, leak 0.126 -> 0.116 (docs/architecture.md).",
+        "registration only.",
     )
     min_agreement: Annotated[float, Range(0, 1)] = setting(
         0.6,
@@ -877,10 +848,7 @@ class RegistrationConfig:
         "colmap",
         "colmap: COLMAP detects its own SIFT features on images of ``max_side``, while the pairs are "
         "matched. matching: it is given the keypoints the match stage found (the target's detected once), "
-        "which is faster but registers the sets a little worse: 4-reference fill on the tower 2.21x a "
-        "single-reference one against 2.37x; DEV-MV restoration, all references, 22.44 against 22.63 dB "
-        "(seeds 0-2; 21.07 against 21.10 on seeds 3-5), static object removal 20.09 against 20.34 dB, "
-        "strangers 17.69 against 17.90 dB (leak 0.122 against 0.116).",
+        "which is faster but registers the sets a little worse.",
     )
     max_features: Annotated[int, Range(256, 65536), COSTLY] = setting(
         2048,
@@ -890,16 +858,12 @@ class RegistrationConfig:
     max_side: Annotated[int, Range(0, 16384), COSTLY_ZERO_MOST] = setting(
         800,
         "Long side (px) of the images COLMAP sees with ``features=colmap``, at most the working size (0: "
-        "the working size). "
-        "DEV-MV restoration, seeds 0-2, all references, ``multiview.joint_scale`` off: 640 px 22.09 dB, "
-        "800 22.63, 960 22.49, 1280 22.41; COLMAP's feature extraction, most of the stage's time, "
-        "scales with the pixels.",
+        "the working size). COLMAP's feature extraction, most of the stage's time, scales with the pixels.",
     )
     optimize_joint: bool = setting(
         False,
         "Run the optimize stage on the references the joint registration placed; false: they keep its "
-        "pose and focal as they are (the references it left out are optimized as usual). False: DEV-MV "
-        "hole PSNR with every reference 23.00 dB in two runs, true 22.56-22.64.",
+        "pose and focal as they are (the references it left out are optimized as usual).",
     )
 
 
@@ -953,9 +917,7 @@ class MultiViewConfig:
     joint_scale: bool = setting(
         False,
         "References placed by the joint registration (``registration.joint``) take their scale in the "
-        "common frame from its baselines, one frame for all, instead of the median depth ratio. Off: "
-        "DEV-MV, all references, joint registration at 1280 px: restoration (seeds 0-2) 22.47 dB (on) vs "
-        "22.41 (off); strangers (seeds 0-1) 16.78 vs 16.91 dB, leak 0.130 vs 0.122.",
+        "common frame from its baselines, one frame for all, instead of the median depth ratio.",
     )
 
 
@@ -1035,9 +997,7 @@ class ScreenConfig:
         "before rendering, so that background the reference sees behind it is rendered into the hole "
         "instead of being hidden by the object's own surface (which the screen then refuses). "
         '"several": only with two or more references, whose multi-view depth measures that background; '
-        "one pair alone only completes its depth. Static object removal over seeds 0-2, all references "
-        "19.93 -> 20.32 dB (leak 0.030 -> 0.029), the primary alone 18.54 -> 18.33 (0.038 -> 0.040). "
-        "Fills whose hole shows nothing to remove are unchanged.",
+        "one pair alone only completes its depth. Fills whose hole shows nothing to remove are unchanged.",
     )
     cross_shift_threshold: Annotated[float, Range(0, 255)] = setting(
         45.0,

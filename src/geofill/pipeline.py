@@ -20,6 +20,7 @@ run at the input resolution.
 
 from __future__ import annotations
 
+import hashlib
 import json
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -651,12 +652,13 @@ def joint_registration(
                 conflict
                 or f"its matches agree with the joint pose {n_joint}x, with the per-pair one {n_own}x"
             )
-            refused.append(f"reference {r.index}: {why}")
+            refused.append((r.index, f"reference {r.index}: {why}"))
             out.append(r)
             continue
         baseline = float(np.linalg.norm(cam.T[:3, 3])) if pose.status == "ok" else None
         out.append(replace(r, focal=joint, pose=pose, joint_baseline=baseline))
-        placed.append(f"{r.index} ({n_joint} matches agree, {n_own} with the per-pair pose)")
+        placed.append((r.index, f"{r.index} ({n_joint} matches agree, {n_own} with the per-pair pose)"))
+    refused, placed = [text for _, text in sorted(refused)], [text for _, text in sorted(placed)]
     why = f" (per-pair kept for {'; '.join(refused)})" if refused else ""
     if not placed:
         return out, f"COLMAP registered no usable reference with the target: per-pair registration{why}"
@@ -676,13 +678,20 @@ def multiview_step(
 ) -> tuple[list[ReferenceArtifacts], MultiViewDepth]:
     """Every reference with geometry given its hole footprint's depth measured from the others
     (:func:`geofill.multiview.multiview_depth`)."""
-    live = [r for r in refs if r.geometry is not None and not r.dropped]
+    # The first reference anchors the common frame (every other one's scale is measured against its
+    # depth): the one with the most pose inliers, not whichever the user listed first.
+    live = sorted(
+        (r for r in refs if r.geometry is not None and not r.dropped),
+        key=lambda r: r.pose.n_inliers,
+        reverse=True,
+    )  # stable: ties keep the canonical order
     geometries, result = multiview_depth(
         [ViewGeometry(r.index, r.views, r.geometry, r.points, r.joint_baseline) for r in live],
         cfg.multiview,
         cfg.fusion.parallel,
     )
     new = {r.index: g for r, g in zip(live, geometries, strict=True)}
+    result = replace(result, references=tuple(sorted(result.references, key=lambda m: m.index)))
     return [replace(r, geometry=new[r.index]) if r.index in new else r for r in refs], result
 
 
@@ -701,7 +710,9 @@ def run_all_references(
     """Every reference through its stages up to ``until`` (all by default) as :func:`fill` runs
     them, with the steps across references where their stage has passed: one focal for a shared
     camera after ``match``, the joint registration after ``pose``, the multi-view depth after
-    ``optimize``."""
+    ``optimize``. The references run in :func:`canonical_order` and come back in the order given."""
+    given = [r.index for r in refs]
+    refs = canonical_order(refs)
     cfg = ctx.cfg
     names = [s for s, _ in REFERENCE_STAGES]
     last = names.index(until) if until is not None else len(names) - 1
@@ -727,7 +738,22 @@ def run_all_references(
         with prog.stage("multi-view depth") as notes:
             refs, multiview = multiview_step(refs, cfg)
             notes.append(multiview.summary())
-    return _run_references(ctx, refs, prog, until=until), AcrossReferences(registration, multiview)
+    done = {r.index: r for r in _run_references(ctx, refs, prog, until=until)}
+    return [done[i] for i in given], AcrossReferences(registration, multiview)
+
+
+def canonical_order(refs: Sequence[ReferenceArtifacts]) -> list[ReferenceArtifacts]:
+    """``refs`` ordered by their content (pixels, then reference mask), so that the order the user
+    lists them in cannot change the fill: the shared focal, the joint registration and the
+    multi-view depth all take them in list order."""
+
+    def digest(a: np.ndarray | None) -> bytes:
+        if a is None:
+            return b""
+        # The buffer itself: tobytes() would copy each source image first.
+        return hashlib.blake2b(np.ascontiguousarray(a).data, digest_size=16).digest()
+
+    return sorted(refs, key=lambda r: (digest(r.source), digest(r.exclude)))
 
 
 def _registered(

@@ -498,6 +498,20 @@ def _score(c: _Candidate) -> tuple[bool, bool, int]:
     return c.report.verified, c.F is not None, c.report.n_verified
 
 
+def another_scene(reports: list[RungReport], cfg: MatchingConfig) -> str:
+    """Why a reference whose early rungs found ``reports`` shows another scene than the target, in
+    the words of the report ("" when it may show the same one): every rung so far verified fewer than
+    ``unrelated_max_verified`` matches."""
+    most = max((r.n_verified for r in reports), default=0)
+    if not reports or most >= cfg.unrelated_max_verified:
+        return ""
+    tried = " and ".join(r.rung for r in reports)
+    return (
+        f"does not show the same scene as the target: {most} matching points ({tried}), "
+        f"{cfg.unrelated_max_verified} needed"
+    )
+
+
 def match_pair(
     target: np.ndarray,
     source: np.ndarray,
@@ -531,13 +545,7 @@ def match_pair(
         recheck = rung == "learned" and (cfg.learned_cross_check or ladder.suspicious)
         if any(r.verified for r in reports) and not recheck:
             break
-        most = max((r.n_verified for r in reports), default=0)
-        if rung not in EARLY_RUNGS and reports and most < cfg.unrelated_max_verified:
-            tried = " and ".join(r.rung for r in reports)
-            unrelated = (
-                f"does not show the same scene as the target: {most} matching points ({tried}), "
-                f"{cfg.unrelated_max_verified} needed"
-            )
+        if rung not in EARLY_RUNGS and (unrelated := another_scene(reports, cfg)):
             notes.append(f"given up before rung {rung}: {unrelated}")
             break
         if reports and time.perf_counter() >= ladder.deadline:

@@ -1,0 +1,58 @@
+"""docs/results.md's sections carry the revision and date they were generated at, and `make
+results-stale` finds those whose code changed since (benchmarks/make_results.py)."""
+
+from __future__ import annotations
+
+import importlib.util
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def mr():
+    if subprocess.run(["git", "rev-parse", "HEAD"], cwd=REPO, capture_output=True).returncode != 0:
+        pytest.skip("not a git checkout")
+    spec = importlib.util.spec_from_file_location("make_results", REPO / "benchmarks" / "make_results.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["make_results"] = module  # dataclasses look their module up
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_a_generated_section_is_stamped_with_its_revision_date_and_code(mr):
+    sec = next(s for s in mr.SECTIONS if s.name == "render")
+    text = mr.format_section(sec, "numbers", 3.0)
+    stamp, body = mr.sections_in(text)["render"]
+    head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO, capture_output=True, text=True)
+    assert stamp["rev"].split("+")[0] == head.stdout.strip()
+    assert stamp["code"] == mr.code_digest(mr.dependencies(sec)) and len(stamp["date"]) == 10
+    assert f"took 3 s; generated at {stamp['rev'].split('+')[0]}" in body
+    deps = mr.dependencies(sec)
+    assert "benchmarks/speed/render_bench.py" in deps and "src/geofill" in deps
+    # Fresh now; stale once the code it depends on is not what it ran.
+    assert mr.staleness(sec, stamp) == ""
+    assert mr.staleness(sec, {**stamp, "code": "0" * 16}).startswith("code changed since")
+
+
+def test_an_unstamped_or_old_section_is_stale(mr):
+    sec = next(s for s in mr.SECTIONS if s.name == "eval")
+    assert mr.staleness(sec, {}) == "no stamp: unknown revision"
+    # A derived stamp at the first commit: src/geofill has changed since.
+    first = subprocess.run(
+        ["git", "rev-list", "--max-parents=0", "HEAD"], cwd=REPO, capture_output=True, text=True
+    ).stdout.split()[0][:7]
+    why = mr.staleness(sec, mr.parse_stamp(f" rev={first} date=2026-01-01 derived"))
+    assert why.endswith(f"changed since {first}") and "src/geofill/" in why
+    words = mr.stamp_words(mr.parse_stamp(f" rev={first} date=x derived"))
+    assert "unknown revision: its text last changed in" in words
+
+
+def test_every_section_of_results_md_is_stamped(mr):
+    found = mr.sections_in(mr.OUT.read_text())
+    assert set(found) == {s.name for s in mr.SECTIONS}
+    assert [name for name, (stamp, _) in found.items() if not stamp.get("rev") or not stamp.get("date")] == []
