@@ -272,6 +272,7 @@ class _Ladder:
         self.best: _Candidate | None = None
         self.candidates: list[_Candidate] = []
         self.learned_name = ""
+        self.learned_unfit = ""  # why the learned matcher cannot take these images ("" when it can)
         self.suspicious = ""  # why SIFT's verified geometry is doubted ("" when it is not)
 
     def sift(self, n: int, max_side: int = 0) -> tuple[Features, Features]:
@@ -291,6 +292,9 @@ class _Ladder:
         matcher, why = learned_matcher(cfg)
         if matcher is None:
             return why
+        self.learned_unfit = matcher.cannot_take(*self.gray)
+        if self.learned_unfit:
+            return self.learned_unfit
         self.learned_name = why
         mt, ms, _ = matcher(*self.gray, self.masks[0])
         inside = ~self.hole[
@@ -303,7 +307,7 @@ class _Ladder:
 
     def run(self, rung: str) -> _Candidate | str:
         """The rung's verified matches, or why it has nothing to work on (guided matching without a
-        first geometry, a learned matcher that is off or does not resolve)."""
+        first geometry, a learned matcher that is off, does not resolve or cannot take the images)."""
         t0, c0 = time.perf_counter(), time.process_time()
         cfg, strict = self.cfg, self.threshold * self.cfg.strict_threshold_scale
         if rung == "sift":
@@ -534,6 +538,8 @@ def match_pair(
         most = max((r.n_verified for r in reports), default=0)
         if rung not in EARLY_RUNGS and reports and most < cfg.unrelated_max_verified:
             tried = " and ".join(r.rung for r in reports)
+            if ladder.learned_unfit:
+                tried += f"; learned skipped: {ladder.learned_unfit}"
             unrelated = (
                 f"does not show the same scene as the target: {most} matching points ({tried}), "
                 f"{cfg.unrelated_max_verified} needed"
