@@ -7,9 +7,7 @@ import dataclasses
 
 import cv2
 import numpy as np
-import onnx
 import pytest
-from onnx import TensorProto, helper, numpy_helper
 
 from geofill.config import DepthConfig, FillConfig
 from geofill.depth import choose_backend
@@ -25,6 +23,9 @@ DA2, DPT, MIDAS = "depth-anything-v2-small", "dpt-hybrid", "midas-v2.1-small"
 
 
 def save_model(path, graph_nodes, inputs, outputs, initializers=()) -> str:
+    import onnx
+    from onnx import helper
+
     graph = helper.make_graph(graph_nodes, "tiny", inputs, outputs, initializer=list(initializers))
     # IR version 8 (onnx 1.10+) so that any onnxruntime of the last years can load it.
     model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)], ir_version=8)
@@ -35,6 +36,8 @@ def save_model(path, graph_nodes, inputs, outputs, initializers=()) -> str:
 
 def red_channel_model(path, in_name="pixel_values", out_name="predicted_depth", hw=("h", "w"), out_4d=False):
     """Outputs the network input's channel 0 (1xHxW, or 1x1xHxW): the preprocessed red channel."""
+    from onnx import TensorProto, helper, numpy_helper
+
     x = helper.make_tensor_value_info(in_name, TensorProto.FLOAT, [1, 3, *hw])
     y = helper.make_tensor_value_info(out_name, TensorProto.FLOAT, [1, 1, *hw] if out_4d else [1, *hw])
     idx = numpy_helper.from_array(np.array([0] if out_4d else 0, np.int64), "idx")
@@ -44,6 +47,8 @@ def red_channel_model(path, in_name="pixel_values", out_name="predicted_depth", 
 
 def constant_model(path, values: np.ndarray):
     """Ignores its (fixed-size) input's content and outputs ``values`` (1xHxW)."""
+    from onnx import TensorProto, helper, numpy_helper
+
     h, w = values.shape
     x = helper.make_tensor_value_info("pixel_values", TensorProto.FLOAT, [1, 3, h, w])
     y = helper.make_tensor_value_info("predicted_depth", TensorProto.FLOAT, [1, h, w])
