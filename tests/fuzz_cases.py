@@ -215,20 +215,23 @@ class Corpus:
         rgba = np.dstack([t, np.full(t.shape[:2], 200, np.uint8)])
         Image.fromarray(rgba).save(f("rgba.webp"), lossless=True)
         self.add("RGBA WebP target", "format", 0, target=f("rgba.webp"))
-        for orientation in range(2, 9):
+        for orientation in (3, 6, 8):
+            path = f(f"orient{orientation}.jpg")
+            jpeg_with_orientation(path, t, orientation)
+            self.add(f"EXIF orientation {orientation} target", "format", 0, target=path)
+
+    def pixel_formats(self) -> None:
+        """Sample formats every reader must bring to 8-bit RGB (grey, alpha, 16-bit, float, 1-bit)
+        and the EXIF orientations not in :meth:`input_files`."""
+        t, src, f = self.target, self.source, self.f
+        for orientation in (2, 4, 5, 7):
             path = f(f"orient{orientation}.jpg")
             jpeg_with_orientation(path, t, orientation)
             self.add(f"EXIF orientation {orientation} target", "format", 0, target=path)
         for orientation in (6, 3):
             path = f(f"src_orient{orientation}.jpg")
-            jpeg_with_orientation(path, self.source, orientation)
+            jpeg_with_orientation(path, src, orientation)
             self.add(f"EXIF orientation {orientation} source", "format", 0, source=path)
-        self.pixel_formats()
-        self.truncations()
-
-    def pixel_formats(self) -> None:
-        """Sample formats every reader must bring to 8-bit RGB (grey, alpha, 16-bit, float, 1-bit)."""
-        t, src, f = self.target, self.source, self.f
         grey = cv2.cvtColor(t, cv2.COLOR_RGB2GRAY)
         cv2.imwrite(str(f("grey16.png")), grey.astype(np.uint16) * 257)
         self.add("16-bit grey PNG target", "format", 0, target=f("grey16.png"))
@@ -401,6 +404,11 @@ class Corpus:
         self.add("16-bit mask", "mask", 0, mask=f("m_16.png"))
         f("m_bad.png").write_bytes(b"\x89PNG\r\n\x1a\n" + b"\x00" * 30)
         self.add("corrupt mask", "mask", 2, mask=f("m_bad.png"))
+
+    def more_masks(self) -> None:
+        """Holes at the edges of what is allowed, and masks in every format a reader takes."""
+        h, w = self.hole.shape
+        f = self.f
         corner = np.zeros((h, w), np.uint8)
         corner[0, 0] = 255
         cv2.imwrite(str(f("m_corner.png")), corner)
@@ -448,6 +456,16 @@ class Corpus:
         self.add("missing depth file", "depth", 2, flags=("--depth-file", str(f("none.npy"))))
         np.save(f("dok.npy"), np.full((h, w), 4.0, np.float32))
         self.add("constant depth file", "depth", 0, flags=("--depth-file", str(f("dok.npy"))))
+        self.add("fused depth without weights", "depth", 2, flags=("--depth", "fused"))
+        self.add("onnx depth without weights", "depth", 2, flags=("--depth", "onnx"))
+        self.add("missing depth model", "depth", 2, flags=("--depth-model", str(f("none.onnx"))))
+        self.add("LaMa without weights", "depth", 2, flags=("--set", "inpaint.method=lama"))
+
+    def depth_units(self) -> None:
+        """The source's true depth in units from 1e-40 to 1e35 and with invalid values, as depth
+        and as disparity: the fit absorbs any unit, invalid values are left out."""
+        h, w = self.source.shape[:2]
+        f = self.f
         true = self.depth
         variants = {
             "metres": true,
@@ -499,10 +517,6 @@ class Corpus:
             -1,
             flags=("--depth-file", str(f("dvar0.npy")), "--depth-scale", "1e30"),
         )
-        self.add("fused depth without weights", "depth", 2, flags=("--depth", "fused"))
-        self.add("onnx depth without weights", "depth", 2, flags=("--depth", "onnx"))
-        self.add("missing depth model", "depth", 2, flags=("--depth-model", str(f("none.onnx"))))
-        self.add("LaMa without weights", "depth", 2, flags=("--set", "inpaint.method=lama"))
 
     def config_values(self, n_random: int = 0) -> None:
         for flags in (
@@ -600,17 +614,39 @@ class Corpus:
             path.write_bytes(bytes(data))
             self.add(f"{kind} {name} #{i}", "input", -1, target=path)
 
-    def build(self, n_random_config: int = 0, n_mutations: int = 0) -> list[Case]:
+    def build(self, n_random_config: int = 0, n_mutations: int = 0, extended: bool = True) -> list[Case]:
+        """Every family's cases; ``extended``: also the slower ones (image shapes and sizes, more
+        references, pixel formats, truncations, masks and depth units), which the benchmark runs."""
         self.input_files()
         self.masks()
-        self.shapes()
-        self.references()
         self.depth_files()
+        if extended:
+            self.pixel_formats()
+            self.truncations()
+            self.more_masks()
+            self.shapes()
+            self.references()
+            self.depth_units()
         self.config_values(n_random_config)
         self.config_files()
         self.outputs()
         self.mutations(n_mutations)
         return self.cases
+
+    def regressions(self) -> list[Case]:
+        """A few cases that once failed with every extra installed, for the unit suite: a
+        4000x64 pair (the learned rung's XFeat divided by zero; the debug overview was wider than
+        JPEG allows) and a depth file in 1e-40 m (float32 overflow when inverted)."""
+        first = len(self.cases)
+        tp, sp, mp = self._scene("shape4000x64", (4000, 64))
+        self.add(
+            "4000x64 with --debug-dir", "shape", 0, target=tp, mask=mp, source=sp, debug_dir=self.out / "dbg"
+        )
+        tp, sp, mp = self._scene("shape64x3000", (64, 3000))
+        self.add("64x3000 target and source", "shape", 0, target=tp, mask=mp, source=sp)
+        np.save(self.f("dtiny.npy"), (self.depth * 1e-40).astype(np.float32))
+        self.add("depth file in 1e-40 m", "depth", 0, flags=("--depth-file", str(self.f("dtiny.npy"))))
+        return self.cases[first:]
 
 
 def _numeric_keys() -> list[str]:
