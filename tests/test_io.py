@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import struct
 import sys
+import warnings
 import zlib
 from io import BytesIO
 from pathlib import Path
@@ -567,6 +568,22 @@ def test_depth_tiff_float_and_uint16(tmp_path):
     )
     tifffile.imwrite(tmp_path / "u.tiff", np.full((6, 8), 1234, np.uint16))
     np.testing.assert_allclose(io.read_depth_file(tmp_path / "u.tiff", expected_size=(8, 6)), 1234.0)
+
+
+def test_depth_values_beyond_float32_are_invalid_without_a_warning(tmp_path):
+    d = np.full((6, 8), 2.0)
+    d[0, :3] = [1e300, -1e300, 1e-300]  # float64 values float32 cannot hold: inf, -inf, 0
+    np.save(tmp_path / "d.npy", d)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        got = io.read_depth_file(tmp_path / "d.npy", expected_size=(8, 6))
+    assert np.isnan(got[0, :3]).all() and (got[0, 3:] == 2.0).all() and (got[1:] == 2.0).all()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        got = io.read_depth_file(
+            tmp_path / "d.npy", expected_size=(8, 6), scale=1e38
+        )  # 2e38 fits, 2 * 1e38 ...
+    assert np.isnan(got[0, :3]).all() and np.isfinite(got[1:]).all()
 
 
 def test_depth_exr(tmp_path):
