@@ -51,6 +51,7 @@ def pytest_configure(config) -> None:
     )
 
 
+@pytest.hookimpl(tryfirst=True)  # before the test's fixtures are set up (they may need the module too)
 def pytest_runtest_setup(item) -> None:
     for mark in item.iter_markers("needs"):
         for module in mark.args:

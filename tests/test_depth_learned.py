@@ -85,6 +85,7 @@ def test_normalisation_per_model():
     np.testing.assert_allclose(preprocess(grey, MODELS[MIDAS]), 0.5, atol=1e-6)  # normalised inside the net
 
 
+@pytest.mark.needs("onnx", "onnxruntime")
 @pytest.mark.parametrize(
     ("model", "names", "fixed", "out_4d"),
     [
@@ -110,6 +111,7 @@ def test_network_output_back_at_source_resolution_and_orientation(tmp_path, mode
     assert abs(np.corrcoef(out.ravel(), yy.ravel())[0, 1]) < 0.01
 
 
+@pytest.mark.needs("onnx", "onnxruntime")
 def test_model_that_cannot_run_is_a_named_error(tmp_path):
     path = red_channel_model(tmp_path / "fixed64.onnx", hw=(64, 64))
     with pytest.raises(DepthModelError, match=r"fixed64\.onnx"):
@@ -180,6 +182,7 @@ def _abs_rel(res, scene) -> float:
     return float(np.nanmedian(np.abs(z - gt) / gt))
 
 
+@pytest.mark.needs("onnx", "onnxruntime")
 @pytest.mark.parametrize("backend", ["onnx", "fused", "auto"])
 def test_learned_backends_in_the_pipeline(scene, oracle_model, backend):
     # The true focal is the default here; estimating it would mix focal error into the depth check.
@@ -197,6 +200,7 @@ def test_learned_backends_in_the_pipeline(scene, oracle_model, backend):
         assert "fused (auto: learned depth" in r.depth_choice and "oracle.onnx" in r.depth_choice
 
 
+@pytest.mark.needs("onnxruntime")
 def test_auto_without_weights_runs_stereo_and_says_why(scene, monkeypatch, tmp_path):
     monkeypatch.setenv("HF_HUB_OFFLINE", "1")
     monkeypatch.setenv("GEOFILL_CACHE", str(tmp_path))
@@ -207,6 +211,7 @@ def test_auto_without_weights_runs_stereo_and_says_why(scene, monkeypatch, tmp_p
     assert res.references[0].depth.backend == "stereo" and res.report.depth_choice == choice.reason
 
 
+@pytest.mark.needs("onnxruntime")
 def test_auto_with_broken_explicit_path_is_an_error(tmp_path):
     with pytest.raises(DepthModelError, match="explicit path"):
         choose_backend(dataclasses.replace(DepthConfig(), model_path=str(tmp_path / "missing.onnx")))
@@ -222,6 +227,7 @@ def _cli_inputs(tmp_path, scene):
     ]
 
 
+@pytest.mark.needs("onnxruntime")
 def test_cli_prints_the_depth_choice_and_reports_it(scene, tmp_path, capsys):
     from geofill.cli import main
 
@@ -237,6 +243,7 @@ def test_cli_prints_the_depth_choice_and_reports_it(scene, tmp_path, capsys):
     assert "HF_HUB_OFFLINE" in report["depth_choice"]
 
 
+@pytest.mark.needs("onnx", "onnxruntime")
 def test_cli_depth_model_flag(scene, oracle_model, tmp_path, capsys):
     from geofill.cli import main
 
