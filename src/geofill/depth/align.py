@@ -106,12 +106,12 @@ def align_depth(pred: DepthPrediction, points: TriangulatedPoints, cfg: Geometry
     # The fit absorbs any constant factor, so a map in another unit is first brought near 1: in
     # its own unit a depth file of 1e-39 m overflows float32 when inverted (1e39 > 3.4e38).
     unit = 1.0 if pred.in_pose_units else unit_of(values)
-    if unit != 1.0:
-        values = (values.astype(np.float64) / unit).astype(np.float32)
-    if space != pred.space:
+    if unit != 1.0 or space != pred.space:
         with np.errstate(divide="ignore", over="ignore"):
-            values = 1.0 / values  # depth <-> inverse depth
-        values[np.isinf(values)] = np.nan  # beyond float32: no depth there
+            values = (values.astype(np.float64) / unit).astype(np.float32)
+            if space != pred.space:
+                values = 1.0 / values  # depth <-> inverse depth
+        values[np.isinf(values)] = np.nan  # beyond float32 (a wild outlier in that unit): no depth there
     x = sample_at(values, points.uv_source)
     z_tri = points.depth
     y = z_tri if space == "depth" else 1.0 / z_tri
