@@ -1,4 +1,5 @@
-"""Shared fixtures: real pairs from ../shared (skipped when absent)."""
+"""Shared fixtures: real pairs from ../shared (skipped when absent); the ``needs`` marker, which
+skips a test whose optional library is not installed and names the extra that installs it."""
 
 from __future__ import annotations
 
@@ -7,6 +8,8 @@ import tempfile
 from pathlib import Path
 
 import pytest
+
+from geofill.extras import EXTRAS, available
 
 # No test may reach the network, the user's weight caches or their explicit model paths: `auto`
 # depth must see "no weights" unless a test provides them (download tests start a local server).
@@ -30,3 +33,27 @@ def pairs_dir() -> Path:
     if not PAIRS_DIR.is_dir():
         pytest.skip(f"real pairs not available ({PAIRS_DIR} missing)")
     return PAIRS_DIR
+
+
+#: Libraries the tests use beside the package's extras (they build tiny ONNX graphs).
+TEST_TOOLS = {"onnx": "dev"}
+
+
+def missing_reason(module: str) -> str:
+    """Why a test that needs ``module`` is skipped here: the extra that installs it."""
+    extra = EXTRAS.get(module) or TEST_TOOLS[module]
+    return f"{module} is not installed (the '{extra}' extra: pip install \"geofill[{extra}]\")"
+
+
+def pytest_configure(config) -> None:
+    config.addinivalue_line(
+        "markers", "needs(*modules): skip unless every module can be imported; the reason names its extra"
+    )
+
+
+@pytest.hookimpl(tryfirst=True)  # before the test's fixtures are set up (they may need the module too)
+def pytest_runtest_setup(item) -> None:
+    for mark in item.iter_markers("needs"):
+        for module in mark.args:
+            if not available(module):
+                pytest.skip(missing_reason(module))

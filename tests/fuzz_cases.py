@@ -2,20 +2,28 @@
 classifies what the CLI did with each (used by tests/test_fuzz.py and benchmarks/quality/fuzz_bench.py).
 
 Families: input files (corrupt, truncated, zero-byte, header-only giants, odd pixel formats, EXIF
-orientations, odd paths), masks, depth files, configuration values and files, output paths, plus
-valid fills. Every case states the exit status it must end with; the runner checks the contract of
-the CLI: a fill (pixels outside the hole byte-identical for PNG/TIFF output) or exactly one stderr
-line with that status and nothing written, never a traceback, never past a time limit."""
+orientations, odd paths), image shapes (extreme aspect ratios, the smallest and large sizes,
+constant images), references (other sizes and orientations, several at once), masks, depth files,
+configuration values and files, output paths, plus valid fills. Every case states the exit status it
+must end with; the runner checks the contract of the CLI: a fill (pixels outside the hole
+byte-identical for PNG/TIFF output) or exactly one stderr line with that status and nothing written,
+never a traceback, never a Python warning or other text on stderr beside the CLI's own lines, never
+past a time limit."""
 
 from __future__ import annotations
 
 import contextlib
 import io
 import json
+import os
 import signal
 import struct
+import sys
+import tempfile
+import warnings
 import zlib
 from collections import Counter
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -38,6 +46,7 @@ OUTCOMES = (
     "multi-line error",
     "unexpected status",
     "invalid config accepted",
+    "raw warning",
 )
 SIZE = (200, 150)  # (w, h) of the synthetic scene: big enough to match, small enough to be quick
 
@@ -116,6 +125,7 @@ class Corpus:
         pair = make_pair(seed=seed, width=SIZE[0], height=SIZE[1])
         # The hole blanked: these cases test the inputs, not what a hole showing an object refuses.
         self.target, self.source, self.hole = blanked(pair.target, pair.hole), pair.source, pair.hole
+        self.depth = pair.depth_source.astype(np.float64)  # the source's true depth, in scene units
         self.files = root / "files"
         self.files.mkdir(exist_ok=True)
         self.out = root / "out"
@@ -210,6 +220,166 @@ class Corpus:
             jpeg_with_orientation(path, t, orientation)
             self.add(f"EXIF orientation {orientation} target", "format", 0, target=path)
 
+    def pixel_formats(self) -> None:
+        """Sample formats every reader must bring to 8-bit RGB (grey, alpha, 16-bit, float, 1-bit)
+        and the EXIF orientations not in :meth:`input_files`."""
+        t, src, f = self.target, self.source, self.f
+        for orientation in (2, 4, 5, 7):
+            path = f(f"orient{orientation}.jpg")
+            jpeg_with_orientation(path, t, orientation)
+            self.add(f"EXIF orientation {orientation} target", "format", 0, target=path)
+        for orientation in (6, 3):
+            path = f(f"src_orient{orientation}.jpg")
+            jpeg_with_orientation(path, src, orientation)
+            self.add(f"EXIF orientation {orientation} source", "format", 0, source=path)
+        grey = cv2.cvtColor(t, cv2.COLOR_RGB2GRAY)
+        cv2.imwrite(str(f("grey16.png")), grey.astype(np.uint16) * 257)
+        self.add("16-bit grey PNG target", "format", 0, target=f("grey16.png"))
+        rgba16 = np.dstack([cv2.cvtColor(t, cv2.COLOR_RGB2BGR), np.full(t.shape[:2], 255, np.uint8)])
+        cv2.imwrite(str(f("rgba16.png")), rgba16.astype(np.uint16) * 257)
+        self.add("16-bit RGBA PNG target", "format", 0, target=f("rgba16.png"))
+        Image.fromarray(np.dstack([src, np.zeros(src.shape[:2], np.uint8)])).save(f("clear.png"))
+        self.add("fully transparent RGBA source", "format", 0, source=f("clear.png"))
+        half = np.full(t.shape[:2], 255, np.uint8)
+        half[:, : t.shape[1] // 2] = 0
+        Image.fromarray(np.dstack([t, half])).save(f("halfclear.png"))
+        self.add("RGBA target half transparent", "format", 0, target=f("halfclear.png"))
+        Image.fromarray(grey).convert("LA").save(f("la.png"))
+        self.add("grey+alpha PNG target", "format", 0, target=f("la.png"))
+        Image.fromarray(grey).convert("1").save(f("bilevel.png"))
+        self.add("1-bit PNG source", "format", 0, source=f("bilevel.png"))
+        write_rgb(f("grey.jpg"), cv2.cvtColor(src, cv2.COLOR_RGB2GRAY), quality=90)
+        self.add("grey JPEG source", "format", 0, source=f("grey.jpg"))
+        tifffile.imwrite(f("rgb16.tif"), t.astype(np.uint16) * 257, photometric="rgb")
+        self.add("16-bit RGB TIFF target", "format", 0, target=f("rgb16.tif"))
+        tifffile.imwrite(f("f32_255.tif"), src.astype(np.float32), photometric="rgb")
+        self.add("float32 TIFF in 0-255 source", "format", 0, source=f("f32_255.tif"))
+        wild = src.astype(np.float32) / 255.0
+        wild[::7, ::5] = np.nan
+        wild[3::11, ::3] = np.inf
+        wild[5::13] = -2.0
+        tifffile.imwrite(f("f32_nan.tif"), wild, photometric="rgb")
+        self.add("float32 TIFF with NaN, inf, negatives source", "format", -1, source=f("f32_nan.tif"))
+        tifffile.imwrite(f("f32_allnan.tif"), np.full(src.shape, np.nan, np.float32), photometric="rgb")
+        self.add("all-NaN float TIFF source", "format", -1, source=f("f32_allnan.tif"))
+        tifffile.imwrite(f("rgba_f32.tif"), np.dstack([wild, np.ones(src.shape[:2], np.float32)]))
+        self.add("float32 RGBA TIFF source", "format", -1, source=f("rgba_f32.tif"))
+        Image.fromarray(t).save(f("t.webp"), quality=90)
+        self.add("lossy WebP target", "format", 0, target=f("t.webp"))
+
+    def truncations(self) -> None:
+        """Every container cut short: an error naming the file, never a partly grey image."""
+        t, f = self.target, self.f
+        bgr16 = cv2.cvtColor(t, cv2.COLOR_RGB2BGR).astype(np.uint16) * 257
+        makers = {
+            "t16.png": lambda p: cv2.imwrite(str(p), bgr16),
+            "tw.webp": lambda p: Image.fromarray(t).save(p, quality=90),
+            "tt.tif": lambda p: tifffile.imwrite(p, t, photometric="rgb"),
+            "tp.jpg": lambda p: Image.fromarray(t).save(p, quality=90, progressive=True),
+        }
+        for name, make in makers.items():
+            make(f(name))
+            data = f(name).read_bytes()
+            for frac in (0.5, 0.97):
+                cut = f(f"cut{int(frac * 100)}_{name}")
+                cut.write_bytes(data[: int(len(data) * frac)])
+                self.add(f"{name} truncated at {int(frac * 100)}%", "input", 2, target=cut)
+        self.add("mask truncated", "mask", 2, mask=self._truncated_copy("mask.png"))
+        self.add("source truncated", "input", 2, source=self._truncated_copy("source.png"))
+
+    def _truncated_copy(self, name: str) -> Path:
+        data = self.f(name).read_bytes()
+        path = self.f(f"cut_{name}")
+        path.write_bytes(data[: len(data) * 2 // 3])
+        return path
+
+    def _scene(self, name: str, size: tuple[int, int], source_size: tuple[int, int] | None = None) -> tuple:
+        """The corpus's pair resized to ``size`` (w, h) (the source to ``source_size``), written as
+        ``<name>_t.png``, ``<name>_s.png`` and ``<name>_m.png``; returns their paths."""
+        t = cv2.resize(self.target, size, interpolation=cv2.INTER_AREA)
+        src = cv2.resize(self.source, source_size or size, interpolation=cv2.INTER_AREA)
+        hole = cv2.resize(self.hole.astype(np.uint8) * 255, size, interpolation=cv2.INTER_NEAREST)
+        if not hole.any():  # a hole thinner than a pixel at this size
+            hole[size[1] // 2, size[0] // 2] = 255
+        t[hole >= 127] = 0
+        paths = self.f(f"{name}_t.png"), self.f(f"{name}_s.png"), self.f(f"{name}_m.png")
+        write_rgb(paths[0], t)
+        write_rgb(paths[1], src)
+        cv2.imwrite(str(paths[2]), hole)
+        return paths
+
+    def shapes(self) -> None:
+        """Extreme aspect ratios, the smallest accepted and refused sizes, large images, constant
+        images. Every rung of the matching ladder that cannot take an image skips with its reason."""
+        for w, h in ((4000, 64), (64, 3000), (2000, 64), (64, 64), (65, 1500), (5000, 80), (1200, 70)):
+            tp, sp, mp = self._scene(f"shape{w}x{h}", (w, h))
+            self.add(f"{w}x{h} target and source", "shape", 0, target=tp, mask=mp, source=sp)
+            self.add(
+                f"{w}x{h} with --debug-dir",
+                "shape",
+                0,
+                target=tp,
+                mask=mp,
+                source=sp,
+                debug_dir=self.out / f"dbg_{w}x{h}",
+            )
+        tp, sp, mp = self._scene("wide_vs_tall", (3000, 64), (64, 3000))
+        self.add("3000x64 target, 64x3000 source", "shape", 0, target=tp, mask=mp, source=sp)
+        for w, h in ((63, 200), (200, 63), (1, 1), (10_000, 8)):
+            tp, sp, mp = self._scene(f"small{w}x{h}", (w, h))
+            self.add(f"{w}x{h} target (a side under 64 px)", "shape", 2, target=tp, mask=mp, source=sp)
+        tp, sp, mp = self._scene("large", (2400, 1800))
+        self.add("2400x1800 target and source", "shape", 0, target=tp, mask=mp, source=sp)
+        self.add(
+            "2400x1800 target, --max-pixels 1000000",
+            "shape",
+            2,
+            target=tp,
+            mask=mp,
+            source=sp,
+            flags=("--max-pixels", "1000000"),
+        )
+        h, w = self.hole.shape
+        for value, name in ((0, "black"), (128, "grey"), (255, "white")):
+            write_rgb(self.f(f"const_{name}.png"), np.full((h, w, 3), value, np.uint8))
+            self.add(f"{name} constant target", "shape", 0, target=self.f(f"const_{name}.png"))
+            self.add(f"{name} constant source", "shape", 0, source=self.f(f"const_{name}.png"))
+        self.add(
+            "constant target and source",
+            "shape",
+            0,
+            target=self.f("const_grey.png"),
+            source=self.f("const_white.png"),
+        )
+        stripes = np.zeros((h, w, 3), np.uint8)
+        stripes[:, ::4] = 255
+        write_rgb(self.f("stripes.png"), stripes)
+        self.add("periodic stripes source", "shape", 0, source=self.f("stripes.png"))
+        noise = self.rng.integers(0, 256, (h, w, 3), dtype=np.uint8)
+        write_rgb(self.f("noise.png"), noise)
+        self.add("white-noise source", "shape", 0, source=self.f("noise.png"))
+
+    def references(self) -> None:
+        """References of other sizes and aspects than the target, several at once, one bad among them."""
+        f, h, w = self.f, *self.hole.shape
+        for name, size in (
+            ("x2", (2 * w, 2 * h)),
+            ("half", (w // 2 + 1, h // 2 + 1)),
+            ("portrait", (h, w)),
+            ("wide", (3 * w, h)),
+            ("min", (64, 64)),
+            ("x8", (8 * w, 8 * h)),
+        ):
+            write_rgb(f(f"ref_{name}.png"), cv2.resize(self.source, size, interpolation=cv2.INTER_LINEAR))
+            self.add(f"source {size[0]}x{size[1]}", "reference", 0, source=f(f"ref_{name}.png"))
+        self.add("two sources", "reference", 0, flags=("--source", str(f("ref_x2.png"))))
+        more = ("--source", str(f("const_grey.png")), "--source", str(f("ref_half.png")))
+        self.add("three sources, one constant", "reference", 0, flags=more)
+        self.add("the target as its own source", "reference", 0, source=f("target.png"))
+        self.add("two sources, one corrupt", "reference", 2, flags=("--source", str(f("garbage.jpg"))))
+        self.add("source mask all masked", "reference", 0, flags=("--source-mask", str(f("m_full.png"))))
+        self.add("source mask of another size", "reference", 2, flags=("--source-mask", str(f("m_size.png"))))
+
     def masks(self) -> None:
         h, w = self.hole.shape
         f = self.f
@@ -235,6 +405,39 @@ class Corpus:
         f("m_bad.png").write_bytes(b"\x89PNG\r\n\x1a\n" + b"\x00" * 30)
         self.add("corrupt mask", "mask", 2, mask=f("m_bad.png"))
 
+    def more_masks(self) -> None:
+        """Holes at the edges of what is allowed, and masks in every format a reader takes."""
+        h, w = self.hole.shape
+        f = self.f
+        corner = np.zeros((h, w), np.uint8)
+        corner[0, 0] = 255
+        cv2.imwrite(str(f("m_corner.png")), corner)
+        self.add("one-pixel hole in the corner", "mask", 0, mask=f("m_corner.png"))
+        cv2.imwrite(str(f("m_126.png")), np.where(self.hole, 126, 0).astype(np.uint8))
+        self.add("mask at 126 (no hole)", "mask", 2, mask=f("m_126.png"))
+        cv2.imwrite(str(f("m_127.png")), np.where(self.hole, 127, 0).astype(np.uint8))
+        self.add("mask at 127 (hole)", "mask", 0, mask=f("m_127.png"))
+        almost = np.full((h, w), 255, np.uint8)
+        almost[: h // 10 + 2] = 0
+        cv2.imwrite(str(f("m_almost.png")), almost)
+        self.add("hole of 88% of the photo", "mask", 0, mask=f("m_almost.png"))
+        frame = np.full((h, w), 255, np.uint8)
+        frame[8:-8, 8:-8] = 0
+        cv2.imwrite(str(f("m_frame.png")), frame)
+        self.add("hole along every border", "mask", 0, mask=f("m_frame.png"))
+        alpha = np.zeros((h, w, 4), np.uint8)
+        alpha[..., 3] = self.hole * 255
+        Image.fromarray(alpha).save(f("m_alpha.png"))
+        self.add("RGBA mask (alpha)", "mask", 0, mask=f("m_alpha.png"))
+        Image.fromarray(np.dstack([self.hole * 255] * 3).astype(np.uint8)).save(f("m_rgb.jpg"), quality=70)
+        self.add("RGB JPEG mask", "mask", 0, mask=f("m_rgb.jpg"))
+        tifffile.imwrite(f("m_f32.tif"), self.hole.astype(np.float32))
+        self.add("float TIFF mask", "mask", 0, mask=f("m_f32.tif"))
+        jpeg_with_orientation(f("m_orient6.jpg"), np.dstack([self.hole * 255] * 3).astype(np.uint8), 6)
+        self.add("mask with EXIF orientation 6", "mask", 0, mask=f("m_orient6.jpg"))
+        cv2.imwrite(str(f("m_tall.png")), np.zeros((w, h), np.uint8) + 255)
+        self.add("mask transposed", "mask", 2, mask=f("m_tall.png"))
+
     def depth_files(self) -> None:
         h, w = self.source.shape[:2]
         f = self.f
@@ -257,6 +460,63 @@ class Corpus:
         self.add("onnx depth without weights", "depth", 2, flags=("--depth", "onnx"))
         self.add("missing depth model", "depth", 2, flags=("--depth-model", str(f("none.onnx"))))
         self.add("LaMa without weights", "depth", 2, flags=("--set", "inpaint.method=lama"))
+
+    def depth_units(self) -> None:
+        """The source's true depth in units from 1e-40 to 1e35 and with invalid values, as depth
+        and as disparity: the fit absorbs any unit, invalid values are left out."""
+        h, w = self.source.shape[:2]
+        f = self.f
+        true = self.depth
+        variants = {
+            "metres": true,
+            "1e-40 m (float32 subnormals)": true * 1e-40,
+            "1e-30 m": true * 1e-30,
+            "1e35 m": true * 1e35,
+            "half NaN": np.where(np.arange(w) < w // 2, true, np.nan),
+            "inf and NaN spots": np.where((np.indices((h, w)).sum(0) % 7) == 0, np.inf, true),
+            "negative": -true,
+            "zeros": np.zeros((h, w)),
+            "one valid pixel": np.where(np.indices((h, w))[0] * w + np.indices((h, w))[1] == 77, 3.0, np.nan),
+            "float64 huge range": np.exp(self.rng.uniform(-300, 300, (h, w))),
+            "float16": true.astype(np.float16),
+            "int16": (true * 1000).astype(np.int16),
+        }
+        no_depth = ("zeros", "one valid pixel", "float64 huge range")  # may be refused up front
+        for i, (name, d) in enumerate(variants.items()):
+            path = f(f"dvar{i}.npy")
+            np.save(
+                path, d if d.dtype != np.float64 or name == "float64 huge range" else d.astype(np.float32)
+            )
+            for kind in ("depth", "disparity"):
+                self.add(
+                    f"depth file {name} as {kind}",
+                    "depth",
+                    -1 if name in no_depth else 0,
+                    flags=("--depth-file", str(path), "--depth-kind", kind),
+                )
+        cv2.imwrite(str(f("d16.png")), (true * 1000).astype(np.uint16))
+        self.add(
+            "16-bit PNG depth in mm",
+            "depth",
+            0,
+            flags=("--depth-file", str(f("d16.png")), "--depth-scale", "0.001"),
+        )
+        cv2.imwrite(str(f("d16z.png")), np.zeros((h, w), np.uint16))
+        self.add("16-bit PNG depth all zero", "depth", 2, flags=("--depth-file", str(f("d16z.png"))))
+        tifffile.imwrite(f("dnan.tif"), np.where(true > 5, np.nan, true).astype(np.float32))
+        self.add("float TIFF depth with NaN", "depth", -1, flags=("--depth-file", str(f("dnan.tif"))))
+        self.add(
+            "depth scale 1e-30",
+            "depth",
+            -1,
+            flags=("--depth-file", str(f("dvar0.npy")), "--depth-scale", "1e-30"),
+        )
+        self.add(
+            "depth scale 1e30",
+            "depth",
+            -1,
+            flags=("--depth-file", str(f("dvar0.npy")), "--depth-scale", "1e30"),
+        )
 
     def config_values(self, n_random: int = 0) -> None:
         for flags in (
@@ -354,15 +614,39 @@ class Corpus:
             path.write_bytes(bytes(data))
             self.add(f"{kind} {name} #{i}", "input", -1, target=path)
 
-    def build(self, n_random_config: int = 0, n_mutations: int = 0) -> list[Case]:
+    def build(self, n_random_config: int = 0, n_mutations: int = 0, extended: bool = True) -> list[Case]:
+        """Every family's cases; ``extended``: also the slower ones (image shapes and sizes, more
+        references, pixel formats, truncations, masks and depth units), which the benchmark runs."""
         self.input_files()
         self.masks()
         self.depth_files()
+        if extended:
+            self.pixel_formats()
+            self.truncations()
+            self.more_masks()
+            self.shapes()
+            self.references()
+            self.depth_units()
         self.config_values(n_random_config)
         self.config_files()
         self.outputs()
         self.mutations(n_mutations)
         return self.cases
+
+    def regressions(self) -> list[Case]:
+        """A few cases that once failed with every extra installed, for the unit suite: a
+        4000x64 pair (the learned rung's XFeat divided by zero; the debug overview was wider than
+        JPEG allows) and a depth file in 1e-40 m (float32 overflow when inverted)."""
+        first = len(self.cases)
+        tp, sp, mp = self._scene("shape4000x64", (4000, 64))
+        self.add(
+            "4000x64 with --debug-dir", "shape", 0, target=tp, mask=mp, source=sp, debug_dir=self.out / "dbg"
+        )
+        tp, sp, mp = self._scene("shape64x3000", (64, 3000))
+        self.add("64x3000 target and source", "shape", 0, target=tp, mask=mp, source=sp)
+        np.save(self.f("dtiny.npy"), (self.depth * 1e-40).astype(np.float32))
+        self.add("depth file in 1e-40 m", "depth", 0, flags=("--depth-file", str(self.f("dtiny.npy"))))
+        return self.cases[first:]
 
 
 def _numeric_keys() -> list[str]:
@@ -402,9 +686,29 @@ class Result:
     stderr: str
 
 
+@contextlib.contextmanager
+def _raw_stderr() -> Iterator[io.StringIO]:
+    """What is written to file descriptor 2 itself (a C library's message, bypassing Python's
+    ``sys.stderr``) while the block runs, in the yielded buffer once it ends."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    got = io.StringIO()
+    with tempfile.TemporaryFile() as tmp:
+        os.dup2(tmp.fileno(), 2)
+        try:
+            yield got
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            tmp.seek(0)
+            got.write(tmp.read().decode("utf-8", "replace"))
+
+
 def run_case(case: Case, timeout_s: int = 120) -> Result:
     """Run ``case`` through ``geofill.cli.main`` in this process (a SIGALRM watchdog bounds it) and
-    classify the outcome (see :data:`OUTCOMES`)."""
+    classify the outcome (see :data:`OUTCOMES`). Every Python warning is recorded (whatever the
+    filters would have shown) and counts as a raw warning, as does text written to stderr's file
+    descriptor past Python: a user sees only the CLI's own lines."""
     from geofill.cli import main
     from geofill.io import read_image, read_mask
 
@@ -412,7 +716,13 @@ def run_case(case: Case, timeout_s: int = 120) -> Result:
     previous = signal.signal(signal.SIGALRM, _alarm)
     signal.alarm(timeout_s)
     try:
-        with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+        with (
+            _raw_stderr() as raw,
+            warnings.catch_warnings(record=True) as heard,
+            contextlib.redirect_stderr(err),
+            contextlib.redirect_stdout(io.StringIO()),
+        ):
+            warnings.simplefilter("always")
             try:
                 code = main(list(case.argv))
             except SystemExit as exc:  # argparse
@@ -429,6 +739,11 @@ def run_case(case: Case, timeout_s: int = 120) -> Result:
     leftovers = [p for p in case.output.parent.glob(f".{case.output.name[:50]}*.tmp")]
     if "Traceback" in text:
         return Result(case, "traceback", code, text)
+    stray = [f"{w.category.__name__}: {w.message} ({w.filename}:{w.lineno})" for w in heard]
+    stray += [line for line in raw.getvalue().splitlines() if line.strip()]
+    stray += [line for line in lines if not line.startswith("geofill")]
+    if stray:
+        return Result(case, "raw warning", code, "\n".join([*stray, text]))
     if code in FILL_CODES:
         if case.expect not in (*FILL_CODES, -1):
             outcome = "invalid config accepted" if case.expect == 3 else "unexpected status"

@@ -83,6 +83,27 @@ def test_fill_writes_output_and_debug(files, tmp_path, capsys):
     assert report["config"]["render"]["edge_threshold"] == 0.04
 
 
+def test_debug_overview_of_a_photo_of_extreme_aspect_is_written(tmp_path, capsys):
+    """A 4000x64 photo: its tiles scaled to the sheet's 300-px height were 18750 px wide each, a
+    sheet past JPEG's 65500-px limit, and the overview's write failed after the fill was written.
+    Now each tile is at most three heights wide."""
+    rng = np.random.default_rng(0)
+    strip = cv2.GaussianBlur((rng.random((64, 4000, 3)) * 255).astype(np.uint8), (0, 0), 2)
+    hole = np.zeros((64, 4000), np.uint8)
+    hole[20:44, 1300:1500] = 255
+    _write_rgb(tmp_path / "target.png", strip)
+    _write_rgb(tmp_path / "source.png", np.roll(strip, 3, axis=1))
+    cv2.imwrite(str(tmp_path / "mask.png"), hole)
+    out, dbg = tmp_path / "o.png", tmp_path / "dbg"
+    flags = ("--debug-dir", dbg, "--preset", "telea", "--allow-fallback")
+    code, err = run([*fill_args(tmp_path, out), *flags], capsys)
+    assert code == 0, err
+    sheet = cv2.imread(str(dbg / "overview.jpg"))
+    assert sheet.shape[:2] == (300, 4 * 900)  # target, reference, fill, coverage: 900 x 300 each
+    # The strip lies under its label, not behind it: 900 px wide, 14 px high, from row 28.
+    assert sheet[28:42, 900:1800].mean() > 60 and sheet[44:, 900:1800].max() < 40
+
+
 def test_verbose_prints_every_stage_with_its_details(files, tmp_path, capsys):
     d, _ = files
     code, err = run([*fill_args(d, tmp_path / "o.png"), "--verbose"], capsys)

@@ -7,9 +7,7 @@ import dataclasses
 
 import cv2
 import numpy as np
-import onnx
 import pytest
-from onnx import TensorProto, helper, numpy_helper
 
 from geofill.config import DepthConfig, FillConfig
 from geofill.depth import choose_backend
@@ -25,6 +23,9 @@ DA2, DPT, MIDAS = "depth-anything-v2-small", "dpt-hybrid", "midas-v2.1-small"
 
 
 def save_model(path, graph_nodes, inputs, outputs, initializers=()) -> str:
+    import onnx
+    from onnx import helper
+
     graph = helper.make_graph(graph_nodes, "tiny", inputs, outputs, initializer=list(initializers))
     # IR version 8 (onnx 1.10+) so that any onnxruntime of the last years can load it.
     model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)], ir_version=8)
@@ -35,6 +36,8 @@ def save_model(path, graph_nodes, inputs, outputs, initializers=()) -> str:
 
 def red_channel_model(path, in_name="pixel_values", out_name="predicted_depth", hw=("h", "w"), out_4d=False):
     """Outputs the network input's channel 0 (1xHxW, or 1x1xHxW): the preprocessed red channel."""
+    from onnx import TensorProto, helper, numpy_helper
+
     x = helper.make_tensor_value_info(in_name, TensorProto.FLOAT, [1, 3, *hw])
     y = helper.make_tensor_value_info(out_name, TensorProto.FLOAT, [1, 1, *hw] if out_4d else [1, *hw])
     idx = numpy_helper.from_array(np.array([0] if out_4d else 0, np.int64), "idx")
@@ -44,6 +47,8 @@ def red_channel_model(path, in_name="pixel_values", out_name="predicted_depth", 
 
 def constant_model(path, values: np.ndarray):
     """Ignores its (fixed-size) input's content and outputs ``values`` (1xHxW)."""
+    from onnx import TensorProto, helper, numpy_helper
+
     h, w = values.shape
     x = helper.make_tensor_value_info("pixel_values", TensorProto.FLOAT, [1, 3, h, w])
     y = helper.make_tensor_value_info("predicted_depth", TensorProto.FLOAT, [1, h, w])
@@ -80,6 +85,7 @@ def test_normalisation_per_model():
     np.testing.assert_allclose(preprocess(grey, MODELS[MIDAS]), 0.5, atol=1e-6)  # normalised inside the net
 
 
+@pytest.mark.needs("onnx", "onnxruntime")
 @pytest.mark.parametrize(
     ("model", "names", "fixed", "out_4d"),
     [
@@ -105,6 +111,7 @@ def test_network_output_back_at_source_resolution_and_orientation(tmp_path, mode
     assert abs(np.corrcoef(out.ravel(), yy.ravel())[0, 1]) < 0.01
 
 
+@pytest.mark.needs("onnx", "onnxruntime")
 def test_model_that_cannot_run_is_a_named_error(tmp_path):
     path = red_channel_model(tmp_path / "fixed64.onnx", hw=(64, 64))
     with pytest.raises(DepthModelError, match=r"fixed64\.onnx"):
@@ -175,6 +182,7 @@ def _abs_rel(res, scene) -> float:
     return float(np.nanmedian(np.abs(z - gt) / gt))
 
 
+@pytest.mark.needs("onnx", "onnxruntime")
 @pytest.mark.parametrize("backend", ["onnx", "fused", "auto"])
 def test_learned_backends_in_the_pipeline(scene, oracle_model, backend):
     # The true focal is the default here; estimating it would mix focal error into the depth check.
@@ -192,6 +200,7 @@ def test_learned_backends_in_the_pipeline(scene, oracle_model, backend):
         assert "fused (auto: learned depth" in r.depth_choice and "oracle.onnx" in r.depth_choice
 
 
+@pytest.mark.needs("onnxruntime")
 def test_auto_without_weights_runs_stereo_and_says_why(scene, monkeypatch, tmp_path):
     monkeypatch.setenv("HF_HUB_OFFLINE", "1")
     monkeypatch.setenv("GEOFILL_CACHE", str(tmp_path))
@@ -202,6 +211,7 @@ def test_auto_without_weights_runs_stereo_and_says_why(scene, monkeypatch, tmp_p
     assert res.references[0].depth.backend == "stereo" and res.report.depth_choice == choice.reason
 
 
+@pytest.mark.needs("onnxruntime")
 def test_auto_with_broken_explicit_path_is_an_error(tmp_path):
     with pytest.raises(DepthModelError, match="explicit path"):
         choose_backend(dataclasses.replace(DepthConfig(), model_path=str(tmp_path / "missing.onnx")))
@@ -217,6 +227,7 @@ def _cli_inputs(tmp_path, scene):
     ]
 
 
+@pytest.mark.needs("onnxruntime")
 def test_cli_prints_the_depth_choice_and_reports_it(scene, tmp_path, capsys):
     from geofill.cli import main
 
@@ -232,6 +243,7 @@ def test_cli_prints_the_depth_choice_and_reports_it(scene, tmp_path, capsys):
     assert "HF_HUB_OFFLINE" in report["depth_choice"]
 
 
+@pytest.mark.needs("onnx", "onnxruntime")
 def test_cli_depth_model_flag(scene, oracle_model, tmp_path, capsys):
     from geofill.cli import main
 

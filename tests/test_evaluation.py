@@ -288,9 +288,9 @@ class _MeanAbs:
 @pytest.mark.parametrize(
     ("make", "suffix", "backend"),
     [
-        (_MeanAbs.onnx, ".onnx", "onnx"),
-        (_MeanAbs.exported, ".pt2", "torch.export"),
-        (_MeanAbs.torchscript, ".pt", "torchscript"),
+        pytest.param(_MeanAbs.onnx, ".onnx", "onnx", marks=pytest.mark.needs("onnx", "onnxruntime")),
+        pytest.param(_MeanAbs.exported, ".pt2", "torch.export", marks=pytest.mark.needs("torch")),
+        pytest.param(_MeanAbs.torchscript, ".pt", "torchscript", marks=pytest.mark.needs("torch")),
     ],
 )
 def test_lpips_scorer_feeds_minus_one_to_one_rgb(tmp_path, make, suffix, backend):
@@ -447,6 +447,7 @@ def test_run_eval_records_failures_and_writes_everything(tmp_path, monkeypatch):
     assert "## By kind" in summary and "| synthetic1 | homography | 1 |" in summary
 
 
+@pytest.mark.needs("onnx", "onnxruntime")
 def test_run_eval_scores_lpips_with_a_model(tmp_path):
     model = _MeanAbs.onnx(tmp_path / "standin.onnx")
     rows = run_eval(
@@ -473,6 +474,7 @@ def test_method_registry():
         resolve_methods(["nope"])
 
 
+@pytest.mark.needs("matplotlib")
 def test_hole_size_sweep_keeps_the_shape_and_widens_the_brush(tmp_path):
     rows = sweep(planar_pairs(1), ["opencv_inpaint", "homography"], tmp_path, widths_720p=(90.0, 210.0))
     table = _read_csv(tmp_path / "sweep.csv")

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -127,22 +129,49 @@ def test_sample_at_is_bilinear_clamped_and_propagates_nan():
     assert np.isnan(out[:3]).all() and np.isfinite(out[3:]).all()
 
 
+def points_on(z: np.ndarray, n: int = 100) -> TriangulatedPoints:
+    """``n`` triangulated points at random pixels of the depth map ``z``, at its depth there."""
+    h, w = z.shape
+    rng = np.random.default_rng(0)
+    uv = np.stack([rng.integers(0, w, n), rng.integers(0, h, n)], axis=1).astype(np.float64)
+    zs = z[uv[:, 1].astype(int), uv[:, 0].astype(int)].astype(np.float64)
+    xyz = np.stack([np.zeros(n), np.zeros(n), zs], axis=1)
+    return TriangulatedPoints(xyz, uv, uv, np.zeros(n), np.ones(n))
+
+
 def test_align_depth_inverse_space_recovers_true_depth():
     """A relative inverse-depth map (a / z + c) is aligned to triangulated depths exactly."""
     h, w = 60, 80
     z_true = np.linspace(3.0, 9.0, w, dtype=np.float32)[None].repeat(h, 0)
     pred = DepthPrediction((0.7 / z_true + 0.05).astype(np.float32), "inverse", "test")
-    rng = np.random.default_rng(0)
-    uv = np.stack([rng.integers(0, w, 100), rng.integers(0, h, 100)], axis=1).astype(np.float64)
-    zs = z_true[uv[:, 1].astype(int), uv[:, 0].astype(int)].astype(np.float64)
-    xyz = np.stack([np.zeros(100), np.zeros(100), zs], axis=1)
-    pts = TriangulatedPoints(xyz, uv, uv, np.zeros(100), np.ones(100))
-    out = align_depth(pred, pts, GeometryConfig(depth_fit="lstsq"))
+    out = align_depth(pred, points_on(z_true), GeometryConfig(depth_fit="lstsq"))
     assert out.space == "inverse"
     np.testing.assert_allclose(out.depth, z_true, rtol=1e-4)
     assert out.scale == pytest.approx(1 / 0.7, rel=1e-4)
     assert out.offset == pytest.approx(-0.05 / 0.7, rel=1e-3)
     assert out.negative_fraction == 0.0
+
+
+@pytest.mark.parametrize("unit", [1e-40, 1e30])
+def test_align_depth_takes_a_map_in_any_unit_without_overflow(unit):
+    """A depth map in a unit so small that its inverse overflows float32 (1 / 1e-40 > 3.4e38), or
+    so large, is aligned like the same map in metres, with no numeric warning; the scale reported
+    applies to the map's own values."""
+    h, w = 60, 80
+    z_true = np.linspace(3.0, 9.0, w, dtype=np.float32)[None].repeat(h, 0)
+    values = (z_true.astype(np.float64) * unit).astype(np.float32)
+    values[0, :3] = [3e38, 1e-45, np.inf]  # outliers far beyond float32 once brought near 1
+    pred = DepthPrediction(values, "depth", "test")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        out = align_depth(pred, points_on(z_true), GeometryConfig(depth_fit="lstsq"))
+    assert out.space == "inverse" and out.n_points >= 97
+    # inf has no depth, nor 3e38 where it overflows float32 in the map's unit (1e-40: 3e78 units);
+    # 1e-45 is just very near.
+    assert np.isnan(out.depth[0, 2]) and (np.isnan(out.depth[0, 0]) or unit > 1)
+    np.testing.assert_allclose(out.depth[1:], z_true[1:], rtol=1e-3)
+    assert out.scale == pytest.approx(unit, rel=1e-3)  # 1 / z = unit / v
+    assert abs(out.offset) < 1e-5
 
 
 def test_matching_keeps_no_duplicate_correspondences_and_no_hole_keypoints():

@@ -6,6 +6,7 @@ import os
 import stat
 import struct
 import sys
+import warnings
 import zlib
 from io import BytesIO
 from pathlib import Path
@@ -263,13 +264,16 @@ def test_truncated_image(tmp_path, ext):
         io.read_image(path)
 
 
-def test_truncated_16bit_png(tmp_path):
+def test_truncated_16bit_png(tmp_path, capfd):
+    """Refused with one message, and libpng (which OpenCV's 16-bit decoding wraps) never gets to
+    print its own error on stderr."""
     rgb16 = np.random.default_rng(1).integers(0, 65535, (100, 100, 3)).astype(np.uint16)
     cv2.imwrite(str(tmp_path / "t.png"), rgb16)
     data = (tmp_path / "t.png").read_bytes()
     (tmp_path / "t.png").write_bytes(data[: len(data) // 2])
-    with pytest.raises(CorruptImageError, match=r"t\.png: cannot decode"):
+    with pytest.raises(CorruptImageError, match=r"t\.png: cannot decode image, truncated or corrupt \(its"):
         io.read_image(tmp_path / "t.png")
+    assert capfd.readouterr().err == ""
 
 
 def test_too_small(tmp_path):
@@ -623,6 +627,22 @@ def test_depth_tiff_float_and_uint16(tmp_path):
     )
     tifffile.imwrite(tmp_path / "u.tiff", np.full((6, 8), 1234, np.uint16))
     np.testing.assert_allclose(io.read_depth_file(tmp_path / "u.tiff", expected_size=(8, 6)), 1234.0)
+
+
+def test_depth_values_beyond_float32_are_invalid_without_a_warning(tmp_path):
+    d = np.full((6, 8), 2.0)
+    d[0, :3] = [1e300, -1e300, 1e-300]  # float64 values float32 cannot hold: inf, -inf, 0
+    np.save(tmp_path / "d.npy", d)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        got = io.read_depth_file(tmp_path / "d.npy", expected_size=(8, 6))
+    assert np.isnan(got[0, :3]).all() and (got[0, 3:] == 2.0).all() and (got[1:] == 2.0).all()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        got = io.read_depth_file(
+            tmp_path / "d.npy", expected_size=(8, 6), scale=1e38
+        )  # 2e38 fits, 2 * 1e38 ...
+    assert np.isnan(got[0, :3]).all() and np.isfinite(got[1:]).all()
 
 
 def test_depth_exr(tmp_path):

@@ -16,8 +16,8 @@ from geofill.match import match_pair
 from geofill.models import registry
 from geofill.synthetic import SyntheticPair, make_pair
 
-onnx = pytest.importorskip("onnx")
-pytest.importorskip("onnxruntime")
+onnx = pytest.importorskip("onnx", reason="onnx is not installed (the 'dev' extra)")
+pytest.importorskip("onnxruntime", reason="onnxruntime is not installed (the 'onnx' extra)")
 from onnx import TensorProto, helper  # noqa: E402
 
 SCALE = 320 / 1280

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 
+import cv2
 import numpy as np
 import pytest
 
@@ -149,6 +150,29 @@ def test_fused_attention_keeps_kornias_matches_and_the_callers_thread_setting() 
     same_a = {tuple(r) for r in np.c_[a[0], a[1]]}
     same_b = {tuple(r) for r in np.c_[b[0], b[1]]}
     assert len(same_a) >= 100 and len(same_a & same_b) >= 0.98 * max(len(same_a), len(same_b))
+
+
+@NEEDS_EXTRA
+@pytest.mark.parametrize("shape", [(20, 1280), (1280, 27)])
+def test_an_image_too_narrow_for_xfeat_skips_the_learned_rung_with_its_reason(shape) -> None:
+    """A 4000x64 (or 64x3000) photo is 1280x20 (27x1280) at working size and 16 (22) px across at
+    the learned matcher's 1024-px long side: XFeat would shrink it to 0 px (a ZeroDivisionError).
+    The rung is skipped, and the reference's reason says why."""
+    rng = np.random.default_rng(0)
+    big = cv2.GaussianBlur((rng.random((*shape, 3)) * 255).astype(np.uint8), (0, 0), 2)
+    target, source = big, np.roll(big, 3, axis=int(np.argmax(shape)))
+    hole = np.zeros(shape, bool)
+    hole[shape[0] // 3 : 2 * shape[0] // 3, shape[1] // 3 : shape[1] // 3 + 8] = True
+    across = round(min(shape) * 1024 / max(shape))
+    cfg = MatchingConfig(learned="on", learned_cross_check=True, max_rung="loose")
+    m = match_pair(target, source, hole, cfg, 1.0)
+    assert "learned" not in [r.rung for r in m.rungs]
+    said = (
+        f"the photo is too narrow for XFeat+LighterGlue: {across} px across at the matcher's 1024-px "
+        "long side, under the 32 px it needs"
+    )
+    assert f"rung learned skipped: {said}" in m.notes
+    assert m.unrelated.endswith(f"(sift; learned skipped: {said}), 15 needed")
 
 
 def test_learned_on_without_the_extra_is_one_line_naming_it(monkeypatch) -> None:

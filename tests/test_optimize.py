@@ -9,7 +9,6 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-import torch
 from scipy.spatial.transform import Rotation
 
 import geofill.optimize as opt
@@ -29,7 +28,10 @@ from geofill.synthetic import blanked, make_pair
 # Losses
 
 
+@pytest.mark.needs("torch")
 def test_barron_alpha_minus_two_is_geman_mcclure():
+    import torch
+
     x = torch.tensor([0.0, 0.5, 3.0, 10.0, 25.0, 400.0], dtype=torch.float64)
     u = (x / 10.0) ** 2
     got = opt.barron_loss(x * x, -2.0, 10.0)
@@ -40,8 +42,11 @@ def test_barron_alpha_minus_two_is_geman_mcclure():
     assert torch.allclose(opt.barron_loss(x * x, 0.0, 10.0), torch.log(0.5 * u + 1))
 
 
+@pytest.mark.needs("torch")
 @pytest.mark.parametrize("alpha", [-2.0, 0.0, 1.0, 2.0])
 def test_barron_weight_is_the_derivative_in_x_squared(alpha):
+    import torch
+
     sq = torch.tensor([0.1, 4.0, 90.0, 1000.0], dtype=torch.float64, requires_grad=True)
     (grad,) = torch.autograd.grad(opt.barron_loss(sq, alpha, 10.0).sum(), sq)
     assert torch.allclose(opt.barron_weight(sq.detach(), alpha, 10.0), grad, rtol=1e-10)
@@ -191,15 +196,21 @@ def test_analytic_jacobian_matches_finite_differences(space):
         assert np.allclose(Jy[:, i], fd[:, 1], rtol=1e-3, atol=1e-2), i
 
 
+@pytest.mark.needs("torch")
 def test_quaternion_to_matrix_matches_scipy():
+    import torch
+
     rot = Rotation.from_rotvec([0.3, -1.2, 0.5])
     x, y, z, w = rot.as_quat()
     q = torch.tensor([w, x, y, z], dtype=torch.float64) * 3.0  # not normalised on purpose
     assert np.allclose(opt.quaternion_to_matrix(q).numpy(), rot.as_matrix(), atol=1e-12)
 
 
+@pytest.mark.needs("torch")
 @pytest.mark.parametrize("space", ["inverse", "depth"])
 def test_reprojection_vjp_equals_autograd_through_the_projection(space):
+    import torch
+
     rng = np.random.default_rng(3)
     K_s = Intrinsics(300.0, 300.0, 160.0, 120.0, 320, 240)
     K_t = Intrinsics(310.0, 305.0, 150.0, 125.0, 320, 240)
@@ -287,6 +298,7 @@ def test_fast_solver_recovers_a_perturbed_pose_and_depth_scale(scene):
     assert np.median(np.abs(res.depth.depth[valid] / depth[valid] - 1)) < 0.02
 
 
+@pytest.mark.needs("torch", "pytorch_optimizer")
 def test_fast_objective_no_worse_than_paper_solver(scene):
     T, depth = scene[4], scene[5]
     T0, d0 = _perturbed_start(T, depth, rot_deg=2.0, tdir_deg=4.0, depth_factor=1.1)

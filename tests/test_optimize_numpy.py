@@ -18,7 +18,8 @@ from geofill.config import OptimizeConfig
 from geofill.optimize.objective import objective_gradient, project_all
 from geofill.optimize.problem import sample_target_with_gradient
 
-torch = pytest.importorskip("torch")  # the reference side of these comparisons
+# torch: the reference side of these comparisons.
+torch = pytest.importorskip("torch", reason="torch is not installed (the 'torch' extra)")
 
 
 def test_sampler_and_its_derivative_equal_grid_sample_and_autograd():

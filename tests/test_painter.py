@@ -157,6 +157,7 @@ def test_speckles_are_diffused_small_known_areas_use_small_patches_and_bad_setti
         assert "\n" not in str(info.value)
 
 
+@pytest.mark.needs("onnxruntime")
 def test_auto_paints_with_exemplars_without_lama(monkeypatch, tmp_path):
     monkeypatch.setenv("GEOFILL_CACHE", str(tmp_path))  # conftest: offline, nothing cached
     inp = get_inpainter(InpaintConfig())

@@ -313,6 +313,7 @@ def _tiny_lama(path, size: int = 64, four_channels: bool = False, scale: float =
     onnx.save(model, str(path))
 
 
+@pytest.mark.needs("onnx", "onnxruntime")
 @pytest.mark.parametrize(("four_channels", "scale"), [(False, 1.0), (True, 255.0)])
 def test_lama_wrapper_crops_resizes_and_pastes_only_in_the_hole(tmp_path, four_channels, scale):
     path = tmp_path / "tiny_lama.onnx"
@@ -337,6 +338,7 @@ def test_lama_wrapper_crops_resizes_and_pastes_only_in_the_hole(tmp_path, four_c
     assert out[ys, xs, 2].min() > 127  # every hole pixel was a hole for the model
 
 
+@pytest.mark.needs("onnxruntime")
 def test_auto_inpainting_falls_back_to_exemplar_and_says_why(monkeypatch, tmp_path):
     monkeypatch.setenv("GEOFILL_CACHE", str(tmp_path / "cache"))
     inp = get_inpainter(InpaintConfig(method="auto"))  # conftest: offline, nothing cached
@@ -357,6 +359,7 @@ def test_auto_inpainting_falls_back_to_exemplar_and_says_why(monkeypatch, tmp_pa
         get_inpainter(InpaintConfig(method="auto", lama_model=str(broken)))
 
 
+@pytest.mark.needs("onnx", "onnxruntime")
 def test_lama_model_resolves_from_the_cache(monkeypatch, tmp_path):
     """The same resolution as the depth networks: a model already in geofill's cache is used."""
     monkeypatch.setenv("GEOFILL_CACHE", str(tmp_path))

@@ -3,8 +3,14 @@ ray-cast synthetic scene rendered with its exact depth and pose."""
 
 from __future__ import annotations
 
+import logging
+import os
+import stat
 import subprocess
 import sys
+import tempfile
+import warnings
+from pathlib import Path
 
 import cv2
 import numba
@@ -12,6 +18,7 @@ import numpy as np
 import pytest
 
 import geofill.render as render_module
+import geofill.utils.jit as jit
 from geofill.camera import Intrinsics, make_pose
 from geofill.evaluation.metrics import psnr
 from geofill.render import project_source_grid, render_mesh, render_roi, triangle_masks
@@ -188,14 +195,66 @@ def _add_three(x):
     return x + 3
 
 
-def test_njit_cached_compiles_in_memory_when_no_cache_folder_is_writable(monkeypatch):
-    # Only the IPython locator, which never serves a file-backed function: numba finds no cache
-    # folder, as for a read-only install run without a writable home.
-    monkeypatch.setattr(numba.config, "CACHE_LOCATOR_CLASSES", "IPythonCacheLocator")
+def _add_four(x):
+    return x + 4
+
+
+@pytest.fixture
+def numba_cache_config(monkeypatch, tmp_path):
+    """numba's cache settings restored after the test; the temp folder a fresh ``tmp_path``."""
+    monkeypatch.setattr(numba.config, "CACHE_DIR", "")
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    monkeypatch.setattr(jit, "_NO_CACHE_SAID", [])
+    return tmp_path
+
+
+def test_njit_cached_keeps_compiled_code_in_a_private_temp_folder_when_home_is_not_writable(
+    monkeypatch, numba_cache_config
+):
+    """No NUMBA_CACHE_DIR, no writable __pycache__ and no writable home (a read-only install run
+    by a user without a home): the kernels are cached in the user's own temp folder, made private,
+    with no warning."""
+    from numba.core import caching
+
+    for locator in (caching.InTreeCacheLocator, caching.UserWideCacheLocator):
+        monkeypatch.setattr(locator, "from_function", classmethod(lambda cls, fn, path: None))
     add = njit_cached()(_add_three)
-    with pytest.warns(RuntimeWarning, match="NUMBA_CACHE_DIR"):
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
         assert add(4) == 7  # numba builds the kernel on its first use
-    assert add._cache.__class__.__name__ == "NullCache"
+    folder = numba_cache_config / f"geofill-numba-{os.getuid()}"
+    assert add._cache.__class__.__name__ == "FunctionCache"
+    assert Path(add._cache.cache_path).is_relative_to(folder)
+    assert stat.S_IMODE(folder.stat().st_mode) == 0o700
+    assert any(folder.rglob("*.nbi"))  # the index numba reads back in the next process
+
+
+def test_njit_cached_compiles_in_memory_and_says_so_once_when_no_folder_is_writable(
+    monkeypatch, numba_cache_config, caplog
+):
+    # Only the IPython locator, which never serves a file-backed function: numba finds no cache
+    # folder at all, the temp one included.
+    monkeypatch.setattr(numba.config, "CACHE_LOCATOR_CLASSES", "IPythonCacheLocator")
+    kernels = njit_cached()(_add_three), njit_cached()(_add_four)
+    with warnings.catch_warnings(), caplog.at_level(logging.WARNING, logger="geofill"):
+        warnings.simplefilter("error")
+        assert [k(4) for k in kernels] == [7, 8]
+    assert [k._cache.__class__.__name__ for k in kernels] == ["NullCache"] * 2
+    (said,) = [r.getMessage() for r in caplog.records]
+    assert said.startswith("geofill: note: numba found no writable folder") and "NUMBA_CACHE_DIR" in said
+
+
+def test_private_temp_folder_refuses_a_folder_others_may_write_or_a_link(numba_cache_config):
+    folder = numba_cache_config / f"geofill-numba-{os.getuid()}"
+    folder.mkdir(mode=0o777)
+    folder.chmod(0o777)  # another user could plant pickles numba would load
+    assert jit.private_temp_folder("geofill-numba") is None
+    folder.rmdir()
+    (numba_cache_config / "elsewhere").mkdir(mode=0o700)
+    folder.symlink_to(numba_cache_config / "elsewhere")
+    assert jit.private_temp_folder("geofill-numba") is None
+    folder.unlink()
+    assert jit.private_temp_folder("geofill-numba") == folder
 
 
 def test_njit_cached_uses_the_disk_cache_where_writable():

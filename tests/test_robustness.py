@@ -174,6 +174,7 @@ def _file_cfg(path: Path) -> FillConfig:
     return FillConfig().updated({"depth.backend": "file", "depth.file_path": str(path)})
 
 
+@pytest.mark.needs("onnxruntime")
 def test_preflight_refuses_bad_depth_files_and_missing_weights(tmp_path):
     cfg = FillConfig()
     check_resources(cfg, _SOURCE_SIZE)  # defaults: nothing to check, nothing raised

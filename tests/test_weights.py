@@ -75,6 +75,7 @@ SPEC = WeightsSpec(
 )
 
 
+@pytest.mark.needs("huggingface_hub")
 def test_download_verifies_caches_and_is_reused(hub, env):
     got = resolve_weights(SPEC, endpoint=hub.endpoint)
     assert isinstance(got, ResolvedWeights), got
@@ -85,6 +86,7 @@ def test_download_verifies_caches_and_is_reused(hub, env):
     assert hub.requests == 1  # the second resolution did not touch the network
 
 
+@pytest.mark.needs("huggingface_hub")
 def test_hub_endpoint_from_environment(hub, env, monkeypatch):
     monkeypatch.setenv("HF_ENDPOINT", hub.endpoint)
     assert SPEC.download_url() == f"{hub.endpoint}/{REPO}/resolve/{REV}/{FILE}"
@@ -92,6 +94,7 @@ def test_hub_endpoint_from_environment(hub, env, monkeypatch):
     assert isinstance(got, ResolvedWeights) and got.source == "download"
 
 
+@pytest.mark.needs("huggingface_hub")
 def test_order_explicit_then_env_then_cache(hub, env, monkeypatch):
     assert isinstance(resolve_weights(SPEC, endpoint=hub.endpoint), ResolvedWeights)  # now cached
     by_env = env / "from_env.onnx"
@@ -114,6 +117,7 @@ def test_missing_explicit_path_is_unavailable_with_reason(env):
     assert "explicit path" in got.reason and "nope.onnx" in got.reason
 
 
+@pytest.mark.needs("huggingface_hub")
 @pytest.mark.parametrize(
     ("mode", "words"), [("corrupt", "SHA-256"), ("truncated", "truncated"), ("missing", "HTTP 404")]
 )
@@ -129,12 +133,14 @@ def test_bad_download_is_refused_and_not_cached(env, mode, words):
     assert not folder.exists() or not any(folder.iterdir())  # no partial or corrupt file left
 
 
+@pytest.mark.needs("huggingface_hub")
 def test_size_only_spec_rejects_wrong_size(hub, env):
     spec = WeightsSpec("sized", FILE, repo_id=REPO, revision=REV, size=len(PAYLOAD) + 1)
     got = resolve_weights(spec, endpoint=hub.endpoint)
     assert isinstance(got, WeightsUnavailable) and "expected" in got.reason
 
 
+@pytest.mark.needs("huggingface_hub")
 def test_unverifiable_spec_is_used_but_says_so(hub, env):
     spec = WeightsSpec("unpinned", FILE, repo_id=REPO, revision=REV)
     got = resolve_weights(spec, endpoint=hub.endpoint)
@@ -142,6 +148,7 @@ def test_unverifiable_spec_is_used_but_says_so(hub, env):
     assert "not verified" in got.describe()
 
 
+@pytest.mark.needs("huggingface_hub")
 def test_corrupt_cache_is_replaced(hub, env):
     path = SPEC.cache_path(env / "cache")
     path.parent.mkdir(parents=True)
@@ -165,6 +172,7 @@ def test_downloads_disabled_by_configuration(hub, env):
     assert isinstance(got, WeightsUnavailable) and "configuration" in got.reason and hub.requests == 0
 
 
+@pytest.mark.needs("huggingface_hub")
 def test_unreachable_server_is_a_reason_not_a_hang(env):
     server = HubServer()
     endpoint = server.endpoint
@@ -173,6 +181,7 @@ def test_unreachable_server_is_a_reason_not_a_hang(env):
     assert isinstance(got, WeightsUnavailable) and "cannot reach" in got.reason
 
 
+@pytest.mark.needs("huggingface_hub")
 def test_hub_cache_is_used_when_verified(env, monkeypatch):
     """A file already in the Hugging Face cache layout (models--org--name/snapshots/<rev>/...)."""
     hub_cache = env / "hf"
@@ -220,6 +229,7 @@ def test_cache_dir_follows_environment(monkeypatch, tmp_path):
     assert W.cache_dir() == Path.home() / ".cache" / "geofill"
 
 
+@pytest.mark.needs("huggingface_hub")
 def test_models_download_shows_progress_verifies_and_is_then_found(hub, env, monkeypatch, capsys):
     from geofill import models
     from geofill.cli import main

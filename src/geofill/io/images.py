@@ -279,6 +279,8 @@ def _jpeg_tables(img: Image.Image) -> JpegTables | None:
 def _decode(img: Image.Image, path: Path, fh: IO[bytes]) -> np.ndarray:
     """Pixels of an opened image at their native bit depth (see the module docstring for why three
     decoders)."""
+    if img.format == "PNG":
+        _check_png_rows(fh)  # before libpng (16-bit PNGs), which prints its error to stderr
     if img.format == "PNG" and _png_bit_depth(fh) == 16:
         data = cv2.imdecode(np.fromfile(path, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
         if data is None:
@@ -290,8 +292,6 @@ def _decode(img: Image.Image, path: Path, fh: IO[bytes]) -> np.ndarray:
         return _read_tiff(path)
     if img.format in ("JPEG", "MPO") and img.mode in ("RGB", "L"):
         return _decode_jpeg_strict(path, grey=img.mode == "L")
-    if img.format == "PNG":
-        _check_png_rows(fh)
     return np.array(img.convert("RGBA" if img.has_transparency_data else "RGB"))  # writable
 
 

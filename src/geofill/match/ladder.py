@@ -272,6 +272,7 @@ class _Ladder:
         self.best: _Candidate | None = None
         self.candidates: list[_Candidate] = []
         self.learned_name = ""
+        self.learned_unfit = ""  # why the learned matcher cannot take these images ("" when it can)
         self.suspicious = ""  # why SIFT's verified geometry is doubted ("" when it is not)
 
     def sift(self, n: int, max_side: int = 0) -> tuple[Features, Features]:
@@ -291,6 +292,9 @@ class _Ladder:
         matcher, why = learned_matcher(cfg)
         if matcher is None:
             return why
+        self.learned_unfit = matcher.cannot_take(*self.gray)
+        if self.learned_unfit:
+            return self.learned_unfit
         self.learned_name = why
         mt, ms, _ = matcher(*self.gray, self.masks[0])
         inside = ~self.hole[
@@ -303,7 +307,7 @@ class _Ladder:
 
     def run(self, rung: str) -> _Candidate | str:
         """The rung's verified matches, or why it has nothing to work on (guided matching without a
-        first geometry, a learned matcher that is off or does not resolve)."""
+        first geometry, a learned matcher that is off, does not resolve or cannot take the images)."""
         t0, c0 = time.perf_counter(), time.process_time()
         cfg, strict = self.cfg, self.threshold * self.cfg.strict_threshold_scale
         if rung == "sift":
@@ -498,14 +502,16 @@ def _score(c: _Candidate) -> tuple[bool, bool, int]:
     return c.report.verified, c.F is not None, c.report.n_verified
 
 
-def another_scene(reports: list[RungReport], cfg: MatchingConfig) -> str:
+def another_scene(reports: list[RungReport], cfg: MatchingConfig, learned_unfit: str = "") -> str:
     """Why a reference whose early rungs found ``reports`` shows another scene than the target, in
     the words of the report ("" when it may show the same one): every rung so far verified fewer than
-    ``unrelated_max_verified`` matches."""
+    ``unrelated_max_verified`` matches. ``learned_unfit``: why the learned rung was skipped, if it was."""
     most = max((r.n_verified for r in reports), default=0)
     if not reports or most >= cfg.unrelated_max_verified:
         return ""
     tried = " and ".join(r.rung for r in reports)
+    if learned_unfit:
+        tried += f"; learned skipped: {learned_unfit}"
     return (
         f"does not show the same scene as the target: {most} matching points ({tried}), "
         f"{cfg.unrelated_max_verified} needed"
@@ -545,7 +551,7 @@ def match_pair(
         recheck = rung == "learned" and (cfg.learned_cross_check or ladder.suspicious)
         if any(r.verified for r in reports) and not recheck:
             break
-        if rung not in EARLY_RUNGS and (unrelated := another_scene(reports, cfg)):
+        if rung not in EARLY_RUNGS and (unrelated := another_scene(reports, cfg, ladder.learned_unfit)):
             notes.append(f"given up before rung {rung}: {unrelated}")
             break
         if reports and time.perf_counter() >= ladder.deadline:

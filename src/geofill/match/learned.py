@@ -58,6 +58,11 @@ class LearnedMatcher:
             )
         self.input_name = inputs[0].name
 
+    def cannot_take(self, gray_t: np.ndarray, gray_s: np.ndarray) -> str:
+        """Why the graph cannot take these images: never (any side is resized to at least one
+        pixel and padded to whole cells)."""
+        return ""
+
     def __call__(
         self, gray_t: np.ndarray, gray_s: np.ndarray, mask_t: np.ndarray | None = None
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -42,6 +42,9 @@ LICENSE = "Apache-2.0"
 MIN_CONFIDENCE = 0.1
 #: Target images whose features are kept (a fill has one target; a batch moves on).
 _CACHED_TARGETS = 2
+#: XFeat resizes its input to sides that are multiples of 32 (rounded down): a narrower image would
+#: become 0 px there.
+MIN_SIDE = 32
 
 
 @dataclass(frozen=True)
@@ -208,6 +211,18 @@ class XFeatLighterGlue:
             yield
         finally:
             torch.set_num_threads(before)
+
+    def cannot_take(self, gray_t: np.ndarray, gray_s: np.ndarray) -> str:
+        """Why XFeat cannot take the target ``gray_t`` or the reference ``gray_s`` ("" when it can
+        take both): a side under :data:`MIN_SIDE` px at its long side of ``max_side``."""
+        for what, gray in (("the photo", gray_t), ("the reference", gray_s)):
+            h, w = downsized(gray, None, self.max_side)[0].shape
+            if min(h, w) < MIN_SIDE:
+                return (
+                    f"{what} is too narrow for {NAME}: {min(h, w)} px across at the matcher's "
+                    f"{self.max_side}-px long side, under the {MIN_SIDE} px it needs"
+                )
+        return ""
 
     def features(self, gray: np.ndarray) -> _ImageFeatures:
         """XFeat keypoints and descriptors of ``gray`` (positions in its pixels)."""

@@ -14,21 +14,31 @@ next to it instead of 0.09 s.
 ``cache=True`` makes numba look for a writable folder: ``$NUMBA_CACHE_DIR``, the package's own
 ``__pycache__``, then the user-wide cache (``~/.cache/numba``). When none is writable (a read-only
 install run by a user without a writable home) numba refuses to cache with a RuntimeError; geofill
-then compiles in memory instead (every process pays the compile, about a second) and says so once,
-naming the variable that gives the cache a home."""
+then gives numba a folder of this user's own in the temp folder (``geofill-numba-<uid>``, created
+private, used only while it is this user's and private: numba's cache files are pickles, which run
+code when loaded). Where even that fails, it compiles in memory (every process pays the compile,
+about a second) and says so once, in words, through the ``geofill`` logger (shown on stderr where
+the logger has no handler), naming the variable that gives the cache a home."""
 
 from __future__ import annotations
 
 import functools
+import os
+import stat
+import tempfile
 import threading
-import warnings
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
+
+from ..progress import LOGGER
 
 #: Kernels by module, in definition order: a module's kernels are built together (see Kernel.build).
 _KERNELS: dict[str, list[Kernel]] = {}
 _BUILD_LOCK = threading.RLock()
 _WARM_UP: list[threading.Thread] = []
+#: Said once per process: numba has nowhere to keep compiled code.
+_NO_CACHE_SAID: list[bool] = []
 
 
 class Kernel:
@@ -74,21 +84,41 @@ def njit_cached(**options: Any) -> Callable[[Callable[..., Any]], Kernel]:
 
 
 def _dispatcher(fn: Callable[..., Any], options: dict[str, Any]) -> Any:
-    from numba import njit
+    from numba import config, njit
 
     try:
         return njit(cache=True, **options)(fn)
     except RuntimeError as exc:
         if "cannot cache function" not in str(exc):
             raise
-        # One message for every function (Python shows a warning once per text and place).
-        warnings.warn(
-            "numba has no writable cache folder: geofill's kernels are compiled in memory on "
-            "every run; set NUMBA_CACHE_DIR to a writable folder to keep the compiled code",
-            RuntimeWarning,
-            stacklevel=1,
+    folder = private_temp_folder("geofill-numba")
+    if folder is not None and config.CACHE_DIR != str(folder):
+        config.CACHE_DIR = str(folder)  # numba's first locator, read at each dispatcher's creation
+        return _dispatcher(fn, options)
+    if not _NO_CACHE_SAID:
+        _NO_CACHE_SAID.append(True)
+        LOGGER.warning(
+            "geofill: note: numba found no writable folder for its compiled code (NUMBA_CACHE_DIR, "
+            "the install's __pycache__, ~/.cache, the temp folder), so geofill's kernels are compiled "
+            "again on every run (about a second); set NUMBA_CACHE_DIR to a writable folder to keep them"
         )
-        return njit(**options)(fn)
+    return njit(**options)(fn)
+
+
+def private_temp_folder(name: str) -> Path | None:
+    """``<temp folder>/<name>-<uid>``, created readable and writable by this user only; None where
+    it cannot be created or is not a folder of this user's that no one else may write or read."""
+    uid = os.getuid() if hasattr(os, "getuid") else None
+    folder = Path(tempfile.gettempdir()) / (f"{name}-{uid}" if uid is not None else name)
+    try:
+        folder.mkdir(mode=0o700, exist_ok=True)
+        st = folder.lstat()
+    except OSError:
+        return None
+    mine = uid is None or st.st_uid == uid
+    if not (stat.S_ISDIR(st.st_mode) and mine and st.st_mode & 0o077 == 0 and os.access(folder, os.W_OK)):
+        return None
+    return folder
 
 
 @njit_cached()
