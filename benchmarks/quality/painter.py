@@ -15,6 +15,10 @@ Time: a 1280x720 and a 3840x2160 crop of a DEV target with a 15 % stroke hole (a
 time and, in brackets, the process's CPU time (all threads; less disturbed by other processes on a
 shared machine than the wall time).
 
+Memory (``--memory``): each timed painter in a fresh process on the DEV Berlin photo scaled to
+``--memory-size`` (default 7600x7600, 58 MP) with a centred rectangular hole of 89 %: the peak
+resident set (ru_maxrss) of the painting process, and the same process's peak before painting.
+
 Writes ``DIR/painter.json`` (every number) and ``DIR/painter.md`` (the tables, for
 docs/results.md) and, with ``--sheets``, contact sheets (truth | hole | each painter) there.
 """
@@ -212,7 +216,54 @@ def timing(painters: dict, repeats: int) -> list[dict]:
     return out
 
 
-def markdown(rows: dict, times: list[dict], names: list[str]) -> str:
+_MEMORY_SCRIPT = """
+import resource, sys, time
+import cv2
+import numpy as np
+from geofill.composite.inpaint import get_inpainter
+from geofill.config import InpaintConfig
+from geofill.evaluation.pairs import load_pair
+
+method, side, folder = sys.argv[1], int(sys.argv[2]), sys.argv[3]
+inp = get_inpainter(InpaintConfig(method=method))
+warm = np.zeros((300, 300), bool)
+warm[20:280, 20:280] = True
+inp.fill(np.full((300, 300, 3), 128, np.uint8), warm)  # compiled before anything is measured
+img = cv2.resize(load_pair(folder).target, (side, side), interpolation=cv2.INTER_CUBIC)
+hole = np.zeros((side, side), bool)
+m = round(side * (1 - 0.89**0.5) / 2)
+hole[m : side - m, m : side - m] = True
+before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+t0 = time.perf_counter()
+inp.fill(img, hole)
+dt = time.perf_counter() - t0
+print(float(hole.mean()), before / 1024, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, dt)
+"""
+
+
+def memory(names: list[str], side: int) -> list[dict]:
+    """Peak resident memory (MiB) of each painter on a ``side`` x ``side`` photo with an 89 % hole,
+    each in its own process."""
+    import subprocess
+
+    rows = []
+    for name in names:
+        folder = str(PAIRS / "dev_opensfm_berlin_01_02")
+        done = subprocess.run(
+            [sys.executable, "-c", _MEMORY_SCRIPT, name, str(side), folder],
+            capture_output=True,
+            text=True,
+            check=True,
+        )
+        share, before, peak, dt = (float(v) for v in done.stdout.split())
+        row = {"painter": name, "size": f"{side}x{side}", "hole": share, "rss_before_mib": before}
+        row |= {"peak_rss_mib": peak, "time": dt}
+        print(row, flush=True)
+        rows.append(row)
+    return rows
+
+
+def markdown(rows: dict, times: list[dict], names: list[str], mem: list[dict] | None = None) -> str:
     lines = [
         "| painter | hole PSNR (dB) | hole SSIM | gradient ratio | patch distance | time (median s) |",
         "| --- | --- | --- | --- | --- | --- |",
@@ -235,6 +286,17 @@ def markdown(rows: dict, times: list[dict], names: list[str]) -> str:
         for row in times:
             cells = " | ".join(f"{row[n]:.2f} s ({row[n + ' cpu']:.2f} s)" for n in timed)
             lines.append(f"| {row['size']} | {100 * row['hole']:.0f} % | {row['load']:.1f} | {cells} |")
+    if mem:
+        lines += [
+            "",
+            "| painter | image | hole | peak RSS before painting (MiB) | peak RSS (MiB) | time (s) |",
+            "| --- | --- | --- | --- | --- | --- |",
+        ]
+        for m in mem:
+            lines.append(
+                f"| {m['painter']} | {m['size']} | {100 * m['hole']:.0f} % | {m['rss_before_mib']:.0f} | "
+                f"{m['peak_rss_mib']:.0f} | {m['time']:.1f} |"
+            )
     return "\n".join(lines) + "\n"
 
 
@@ -246,6 +308,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--pairs", type=int, default=8, help="first N DEV pairs")
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--sheets", action="store_true", help="write contact sheets to --out")
+    ap.add_argument("--memory", action="store_true", help="measure the timed painters' peak RSS")
+    ap.add_argument("--memory-size", type=int, default=7600, help="side (px) of the --memory photo")
     args = ap.parse_args(argv)
     available = _painters()
     names = args.painters.split(",")
@@ -263,9 +327,11 @@ def main(argv: list[str] | None = None) -> int:
     print(f"load {os.getloadavg()}", flush=True)
     rows = quality({n: available[n] for n in names}, dev_pairs(args.pairs), args.out if args.sheets else None)
     times = timing({n: available[n] for n in timed}, args.repeats) if timed else []
-    (args.out / "painter.json").write_text(json.dumps({"quality": rows, "timing": times}, indent=1))
-    (args.out / "painter.md").write_text(markdown(rows, times, names))
-    print(markdown(rows, times, names))
+    mem = memory(timed, args.memory_size) if args.memory else []
+    numbers = {"quality": rows, "timing": times, "memory": mem}
+    (args.out / "painter.json").write_text(json.dumps(numbers, indent=1))
+    (args.out / "painter.md").write_text(markdown(rows, times, names, mem))
+    print(markdown(rows, times, names, mem))
     return 0
 
 

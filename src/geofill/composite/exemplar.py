@@ -194,6 +194,24 @@ def _distances(img, ty, tx, nnf, dist, lo, hi, r):  # pragma: no cover - compile
         dist[k] = _ssd(img, ty[k], tx[k], nnf[k, 0], nnf[k, 1], r, np.inf)
 
 
+@njit_cached(nogil=True)
+def _copy_matches(image, hole, tid, nnf, top, a0, tex):  # pragma: no cover - compiled
+    # Each hole pixel of rows a0.. (as many as ``tex`` has) from the full-resolution pixel its
+    # level-``top`` patch's match points at; a match's patch is known there, so that pixel is too.
+    h, w = hole.shape
+    m = (1 << top) - 1
+    for i in range(tex.shape[0]):
+        y = a0 + i
+        for x in range(w):
+            if not hole[y, x]:
+                continue
+            j = tid[y >> top, x >> top]
+            sy = min((nnf[j, 0] << top) + (y & m), h - 1)
+            sx = min((nnf[j, 1] << top) + (x & m), w - 1)
+            for c in range(tex.shape[2]):
+                tex[i, x, c] = image[sy, sx, c]
+
+
 def _workers() -> int:
     usable = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
     return max(1, min(usable or 1, 8))
@@ -248,7 +266,10 @@ def complete(image: np.ndarray, hole: np.ndarray, settings: ExemplarSettings | N
     """``image`` (HxWx3 uint8) with ``hole`` (HxW bool) painted from patches of the rest of the
     image, which is returned unchanged. ``settings.patch_radius`` shrinks (to 1) where no whole
     patch of that size is known; a hole at most 2 px deep, or one leaving no 3x3 patch known, is
-    diffused (Telea)."""
+    diffused (Telea).
+
+    Memory is bounded by the searched levels (at most ``_SEARCH_LONG_SIDE`` px long): the levels
+    above them are never held whole; the full-resolution result is assembled in row strips."""
     s = settings or ExemplarSettings()
     r = s.patch_radius
     hole = hole.astype(bool)
@@ -262,32 +283,41 @@ def complete(image: np.ndarray, hole: np.ndarray, settings: ExemplarSettings | N
     while r > 1 and not _has_patch(hole, 2 * r + 1):
         r -= 1
     side = 2 * r + 1
-    depth = float(distance_to(~hole).max())
-    if depth <= _DIFFUSE_DEPTH_PX or not _has_patch(hole, side):
+    if not _deeper_than(hole, _DIFFUSE_DEPTH_PX) or not _has_patch(hole, side):
         diffused = cv2.inpaint(image, hole.astype(np.uint8), 5.0, cv2.INPAINT_TELEA)
         np.copyto(out, diffused, where=hole[..., None])
         return out
 
-    # Pyramid: halve until the hole is about a patch deep, keeping known patches to copy.
-    imgs, holes = [image.astype(np.float32) / 255.0], [hole]
+    # Levels longer than _SEARCH_LONG_SIDE are not searched: their matches are the searched level's
+    # scaled up (at 4K a search would cost seconds and a copied patch there is as sharp), and only
+    # their holes are built; ``top`` is the finest searched level.
+    holes = [hole]
+    while (
+        max(holes[-1].shape) > _SEARCH_LONG_SIDE
+        and min(hole.shape) >> len(holes) >= _MIN_SIDE_PATCHES * side
+        and _has_patch(small := _downsample_hole(holes[-1]), side)
+    ):
+        holes.append(small)
+    top = len(holes) - 1
+    # The hole's depth in top-level pixels; a coarser level's is this halved per level.
+    depth = float(distance_to(~holes[top]).max())
+    imgs = [_downsample_strips(image, hole, top)]
+    holes = holes[top:]
+    # Coarser levels: halve until the hole is about a patch deep, keeping known patches to copy.
     while (
         depth / 2 ** (len(imgs) - 1) > _COARSE_DEPTH_PATCHES * side
-        or max(hole.shape) >> (len(imgs) - 1) > _COARSE_LONG_SIDE
-    ) and min(hole.shape) >> len(imgs) >= _MIN_SIDE_PATCHES * side:
+        or max(hole.shape) >> (top + len(imgs) - 1) > _COARSE_LONG_SIDE
+    ) and min(hole.shape) >> (top + len(imgs)) >= _MIN_SIDE_PATCHES * side:
         small, small_hole = _downsample(imgs[-1], holes[-1])
         if not _has_patch(small_hole, side):
             break
         imgs.append(small)
         holes.append(small_hole)
 
-    # Levels longer than _SEARCH_LONG_SIDE are not searched: their matches are the coarser level's
-    # doubled (at 4K a search would cost seconds and a copied patch there is as sharp).
-    top = next(i for i, h_ in enumerate(holes) if max(h_.shape) <= _SEARCH_LONG_SIDE or i == len(holes) - 1)
-
     # Texture features (Newson et al. 2017): mean absolute x and y derivatives over a window as wide
     # as a coarsest-level pixel, computed at the finest searched level and carried down the pyramid,
     # so that coarse matching, where the image itself is smooth, still tells textured from flat.
-    imgs[top:] = _with_features(imgs[top], holes[top:])
+    imgs = _with_features(imgs[0], holes)
 
     # Coarsest level: diffusion for the structure.
     for c in range(0, imgs[-1].shape[2], 3):
@@ -307,10 +337,8 @@ def complete(image: np.ndarray, hole: np.ndarray, settings: ExemplarSettings | N
         n_levels = len(imgs)
         for li in range(n_levels - 1, -1, -1):
             lev = _Level.make(np.ascontiguousarray(imgs[li]), holes[li], r)
-            nnf = _init_nnf(lev, prev, nnf, s.seed + li)
+            nnf = _init_nnf(lev, prev, nnf, s.seed + top + li)
             prev = lev
-            if li < top:
-                continue
             # Small levels in this thread: handing them to the pool costs more than they do.
             pool = workers if lev.ty.size >= _PARALLEL_MIN_TARGETS else None
             if li < n_levels - 1:
@@ -324,33 +352,95 @@ def complete(image: np.ndarray, hole: np.ndarray, settings: ExemplarSettings | N
             for it in range(iters):
                 for sweep, step in enumerate((1, -1)):
                     bands = _bands(lev.ty, (2 * it + sweep) % 2)
-                    seed = int(_seed(s.seed, li, it, sweep))
+                    seed = int(_seed(s.seed, top + li, it, sweep))
                     _search_parallel(pool, lev, nnf, dist, bands, step, radius, seed, r)
                 _vote_parallel(pool, lev, nnf, _weights(dist, r), r)
                 _distances_parallel(pool, lev, nnf, dist, r)
-        # The finest level's pixels straight from their own patch's match (Newson et al.): a mean
-        # over the overlapping patches would blur what does not line up.
-        _vote_parallel(workers, prev, nnf, np.ones(prev.ty.size, np.float32), 0)
     finally:
         workers.shutdown()
-    texture = prev.img[..., :3] * 255.0
+    diffused = None
     if s.structure_sigma > 0:
         # Large-scale structure from diffusion (Telea), texture from the exemplars: a misplaced
         # exemplar structure costs twice in error, a diffused one once. Diffused at the finest
         # searched level: at 4K a full-resolution Telea alone would cost more than the search.
-        diffused = image
-        if top > 0:
-            diffused = np.clip(np.rint(imgs[top][..., :3] * 255.0), 0, 255).astype(np.uint8)
-        diffused = cv2.inpaint(diffused, holes[top].astype(np.uint8), 5.0 / 2**top, cv2.INPAINT_TELEA)
-        if top > 0:
-            diffused = cv2.resize(diffused, hole.shape[::-1], interpolation=cv2.INTER_LINEAR)
-        diffused = diffused.astype(np.float32)
-        texture += cv2.GaussianBlur(diffused, (0, 0), s.structure_sigma) - cv2.GaussianBlur(
-            texture, (0, 0), s.structure_sigma
-        )
-    filled = np.clip(np.rint(texture), 0, 255).astype(np.uint8)
-    np.copyto(out, filled, where=hole[..., None])
+        diffused = np.clip(np.rint(prev.img[..., :3] * 255.0), 0, 255).astype(np.uint8)
+        if top == 0:
+            diffused = image
+        diffused = cv2.inpaint(diffused, holes[0].astype(np.uint8), 5.0 / 2**top, cv2.INPAINT_TELEA)
+    _assemble(out, image, hole, prev, nnf, top, diffused, s.structure_sigma)
     return out
+
+
+#: Rows per strip of the full-resolution passes (see :func:`_assemble`).
+_STRIP_ROWS = 256
+
+
+def _deeper_than(hole: np.ndarray, px: float) -> bool:
+    """Whether some hole pixel is more than ``px`` from every known pixel (exact Euclidean, without
+    a full-resolution distance map)."""
+    n = int(px)
+    yy, xx = np.mgrid[-n : n + 1, -n : n + 1]
+    disc = (yy * yy + xx * xx <= px * px).astype(np.uint8)
+    return bool(cv2.erode(hole.astype(np.uint8), disc, borderType=cv2.BORDER_CONSTANT, borderValue=1).any())
+
+
+def _downsample_hole(hole: np.ndarray) -> np.ndarray:
+    """The hole of :func:`_downsample`: any pixel of the 2x2 block unknown."""
+    if hole.shape[0] % 2 or hole.shape[1] % 2:
+        hole = np.pad(hole, ((0, hole.shape[0] % 2), (0, hole.shape[1] % 2)), mode="edge")
+    return hole[0::2, 0::2] | hole[1::2, 0::2] | hole[0::2, 1::2] | hole[1::2, 1::2]
+
+
+def _downsample_strips(image: np.ndarray, hole: np.ndarray, times: int) -> np.ndarray:
+    """``image`` (uint8) as float32 in [0, 1], halved ``times`` times by :func:`_downsample`, in row
+    strips a multiple of ``2**times`` high (the same values as whole, without a full-size float copy)."""
+    f = 1 << times
+    rows = f * max(1, _STRIP_ROWS // f)
+    parts = []
+    for a in range(0, image.shape[0], rows):
+        part, part_hole = image[a : a + rows].astype(np.float32) / 255.0, hole[a : a + rows]
+        for _ in range(times):
+            part, part_hole = _downsample(part, part_hole)
+        parts.append(part)
+    return np.ascontiguousarray(np.vstack(parts))
+
+
+def _assemble(
+    out: np.ndarray,
+    image: np.ndarray,
+    hole: np.ndarray,
+    lev: _Level,
+    nnf: np.ndarray,
+    top: int,
+    diffused: np.ndarray | None,
+    sigma: float,
+) -> None:
+    """Writes ``out``'s hole pixels: each the known pixel its searched-level patch's match points at
+    (scaled up ``2**top``; not averaged over overlapping patches, which would blur what does not line
+    up, Newson et al.), with the structure above the Gaussian scale ``sigma`` taken from
+    ``diffused`` (that level's diffusion) when given. In row strips: at 58 MP whole-image float
+    copies cost gigabytes."""
+    h, w = hole.shape
+    f = 1 << top
+    radius = int(np.ceil(4.0 * sigma))
+    margin = radius + f if diffused is not None else 0
+    for a in range(0, h, _STRIP_ROWS):
+        b = min(a + _STRIP_ROWS, h)
+        if not hole[a:b].any():
+            continue
+        a0, b0 = max(a - margin, 0), min(b + margin, h)
+        tex = image[a0:b0].astype(np.float32)
+        _copy_matches(image, hole, lev.tid, nnf, top, a0, tex)
+        if diffused is not None:
+            # The diffusion scaled up over these rows only (one coarse row either side, so that
+            # the interpolation matches a whole-image resize), then its large scales swapped in.
+            c0, c1 = max(a0 // f - 1, 0), min(-(-b0 // f) + 1, diffused.shape[0])
+            big = cv2.resize(diffused[c0:c1], None, fx=f, fy=f, interpolation=cv2.INTER_LINEAR)
+            big = big[a0 - c0 * f : b0 - c0 * f, :w].astype(np.float32)
+            k = (2 * radius + 1, 2 * radius + 1)
+            tex += cv2.GaussianBlur(big, k, sigma) - cv2.GaussianBlur(tex, k, sigma)
+        part = hole[a:b]
+        out[a:b][part] = np.clip(np.rint(tex[a - a0 : b - a0][part]), 0, 255).astype(np.uint8)
 
 
 def _has_patch(hole: np.ndarray, side: int) -> bool:
