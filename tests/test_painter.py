@@ -230,3 +230,54 @@ def test_out_of_memory_is_one_line_with_its_own_exit_status_and_writes_nothing(t
         "nothing was written"
     )
     assert sorted(p.name for p in tmp_path.iterdir()) == ["m.png", "s.png", "t.png"]
+
+
+def _wall_and_floor(h: int = 240, w: int = 320) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A brick wall above a tiled floor, both planes seen in perspective (homographies of
+    fronto-parallel textures), meeting along a slanted straight line: the image, the floor's
+    pixels and the meeting line's row per column."""
+    yy, xx = np.mgrid[0:400, 0:600]
+    brick = ((yy % 12) >= 2) & (((xx + 13 * ((yy // 12) % 2)) % 26) >= 2)
+    wall = np.where(brick[..., None], [170, 70, 50], [200, 190, 180]).astype(np.float32)
+    floor = np.where(((xx // 20 + yy // 20) % 2)[..., None] == 1, [60, 90, 140], [150, 170, 200]).astype(
+        np.float32
+    )
+
+    def line(x):
+        return 130 + 0.15 * (x - w / 2)
+
+    square = np.float32([[0, 0], [600, 0], [600, 400], [0, 400]])
+    left, right = (-0.2 * w, line(-0.2 * w)), (1.2 * w, line(1.2 * w))
+    to_floor = np.float32([left, right, [2.5 * w, 2 * h], [-1.5 * w, 2 * h]])
+    to_wall = np.float32([[left[0], left[1] - 260], [right[0], right[1] - 200], right, left])
+    floor_img = cv2.warpPerspective(
+        floor, cv2.getPerspectiveTransform(square, to_floor), (w, h), flags=cv2.INTER_AREA
+    )
+    wall_img = cv2.warpPerspective(
+        wall, cv2.getPerspectiveTransform(square, to_wall), (w, h), flags=cv2.INTER_AREA
+    )
+    rows, cols = np.mgrid[0:h, 0:w]
+    on_floor = rows >= line(cols)
+    img = np.where(on_floor[..., None], floor_img, wall_img)
+    return np.clip(np.rint(img), 0, 255).astype(np.uint8), on_floor, line(np.arange(w))
+
+
+@pytest.mark.parametrize("sigma", [0.0, 4.0])
+def test_wall_and_floor_are_each_filled_from_themselves_and_their_meeting_line_continues(sigma):
+    """A hole across the line where a brick wall meets a tiled floor: no hole pixel more than 3 px
+    from the line takes the other surface's colours (the old painter put 120-144 there: wall
+    smeared onto the floor), and the line runs on within 2 px of where it is (old: 4-7 px off)."""
+    img, on_floor, line = _wall_and_floor()
+    h, w = on_floor.shape
+    hole = _disc(h, w, 130, 160, 50)
+    blank = img.copy()
+    blank[hole] = 0
+    out = complete(blank, hole, ExemplarSettings(structure_sigma=sigma))
+    wallish = out[..., 0].astype(int) > out[..., 2]  # bricks and mortar are red over blue, tiles not
+    rows, cols = np.mgrid[0:h, 0:w]
+    far = np.abs(rows - line[cols]) > 3
+    assert (hole & far & (wallish == on_floor)).sum() == 0
+    through = np.arange(120, 201, 10)
+    first_floor = np.array([60 + np.flatnonzero(~wallish[60:200, c])[0] for c in through])
+    assert np.abs(first_floor - line[through]).max() <= 2.0, first_floor - line[through]
+    np.testing.assert_array_equal(out[~hole], blank[~hole])

@@ -38,6 +38,8 @@ import numpy as np
 
 from ..utils.distance import distance_to
 from ..utils.jit import njit_cached
+from ..utils.membrane import membrane_fill
+from .surfaces import segment
 
 #: Rows per search band (one thread's unit of work); odd iterations shift the bands by half of it.
 _BAND_ROWS = 24
@@ -56,6 +58,9 @@ _FEATURE_WEIGHT = 60.0
 _SEARCH_LONG_SIDE = 1400
 #: Random-search radius at the levels below the coarsest, in patch widths.
 _REFINE_RADIUS_PATCHES = 2
+#: A surface is filled from itself only when it has at least this many known patches per target
+#: patch (else from anywhere: a few patches copied over a large area repeat visibly).
+_MIN_SURFACE_SOURCES = 0.1
 #: Levels with fewer target patches than this run in the calling thread.
 _PARALLEL_MIN_TARGETS = 20_000
 
@@ -113,10 +118,11 @@ def _ssd(img, ty, tx, sy, sx, r, bound):  # pragma: no cover - compiled
 
 
 @njit_cached(nogil=True, fastmath=True)
-def _search(img, valid, tid, ty, tx, nnf, dist, bands, step, radius, seed, r):  # pragma: no cover
+def _search(img, valid, slab, tlab, tid, ty, tx, nnf, dist, bands, step, radius, seed, r):  # pragma: no cover
     # One PatchMatch pass over the bands listed in ``bands`` (rows: first, last+1 target index):
     # propagation from the previous neighbour in scan order (left/up for step 1, right/down for
     # step -1, inside the band only), then a random search around the best match at halving radii.
+    # A target with a surface (``tlab`` >= 0) takes sources of that surface (``slab``) only.
     h, w = img.shape[0], img.shape[1]
     for b in range(bands.shape[0]):
         lo, hi = bands[b, 0], bands[b, 1]
@@ -124,6 +130,7 @@ def _search(img, valid, tid, ty, tx, nnf, dist, bands, step, radius, seed, r):  
         for i in range(n):
             k = lo + i if step > 0 else hi - 1 - i
             y, x = ty[k], tx[k]
+            tl = tlab[k]
             by, bx, best = nnf[k, 0], nnf[k, 1], dist[k]
             for nb in range(2):
                 py, px = (y, x - step) if nb == 0 else (y - step, x)
@@ -135,6 +142,8 @@ def _search(img, valid, tid, ty, tx, nnf, dist, bands, step, radius, seed, r):  
                 cy = nnf[j, 0] + (y - py)
                 cx = nnf[j, 1] + (x - px)
                 if cy < 0 or cy >= h or cx < 0 or cx >= w or not valid[cy, cx]:
+                    continue
+                if tl >= 0 and slab[cy, cx] != tl:
                     continue
                 if cy == by and cx == bx:
                     continue
@@ -150,6 +159,8 @@ def _search(img, valid, tid, ty, tx, nnf, dist, bands, step, radius, seed, r):  
                 t += 1
                 rad = rad // 2
                 if cy < 0 or cy >= h or cx < 0 or cx >= w or not valid[cy, cx]:
+                    continue
+                if tl >= 0 and slab[cy, cx] != tl:
                     continue
                 d = _ssd(img, y, x, cy, cx, r, best)
                 if d < best:
@@ -195,11 +206,14 @@ def _distances(img, ty, tx, nnf, dist, lo, hi, r):  # pragma: no cover - compile
 
 
 @njit_cached(nogil=True)
-def _copy_matches(image, hole, tid, nnf, top, a0, tex):  # pragma: no cover - compiled
+def _copy_matches(image, hole, tid, nnf, top, a0, tex, low, detail):  # pragma: no cover - compiled
     # Each hole pixel of rows a0.. (as many as ``tex`` has) from the full-resolution pixel its
-    # level-``top`` patch's match points at; a match's patch is known there, so that pixel is too.
+    # level-``top`` patch's match points at (a match's patch is known there, so that pixel is too);
+    # with ``detail``, added to ``tex`` less ``low`` (level ``top``) there, bilinearly interpolated.
     h, w = hole.shape
     m = (1 << top) - 1
+    f = float(1 << top)
+    lh, lw = low.shape[0], low.shape[1]
     for i in range(tex.shape[0]):
         y = a0 + i
         for x in range(w):
@@ -208,8 +222,20 @@ def _copy_matches(image, hole, tid, nnf, top, a0, tex):  # pragma: no cover - co
             j = tid[y >> top, x >> top]
             sy = min((nnf[j, 0] << top) + (y & m), h - 1)
             sx = min((nnf[j, 1] << top) + (x & m), w - 1)
+            if not detail:
+                for c in range(tex.shape[2]):
+                    tex[i, x, c] = image[sy, sx, c]
+                continue
+            u = min(max((sy + 0.5) / f - 0.5, 0.0), lh - 1.0)
+            v = min(max((sx + 0.5) / f - 0.5, 0.0), lw - 1.0)
+            u0, v0 = min(int(u), lh - 2) if lh > 1 else 0, min(int(v), lw - 2) if lw > 1 else 0
+            du, dv = u - u0, v - v0
+            u1, v1 = min(u0 + 1, lh - 1), min(v0 + 1, lw - 1)
             for c in range(tex.shape[2]):
-                tex[i, x, c] = image[sy, sx, c]
+                mean = (1 - du) * ((1 - dv) * low[u0, v0, c] + dv * low[u0, v1, c]) + du * (
+                    (1 - dv) * low[u1, v0, c] + dv * low[u1, v1, c]
+                )
+                tex[i, x, c] += image[sy, sx, c] - mean
 
 
 def _workers() -> int:
@@ -221,7 +247,9 @@ def _workers() -> int:
 class _Level:
     """One pyramid level: the image (float32, hole pixels being estimated), the hole, which patch
     centres may be copied (``valid``), the target patches (those touching the hole: ``ty``, ``tx``,
-    their index ``tid`` per pixel, -1 elsewhere) and the hole pixels (``hy``, ``hx``)."""
+    their index ``tid`` per pixel, -1 elsewhere), the hole pixels (``hy``, ``hx``), each pixel's
+    surface (``slab``) and the surface each target copies from (``tlab``; -1: any, where its own
+    surface has too few known patches to copy)."""
 
     img: np.ndarray
     hole: np.ndarray
@@ -231,18 +259,26 @@ class _Level:
     tid: np.ndarray
     hy: np.ndarray
     hx: np.ndarray
+    slab: np.ndarray
+    tlab: np.ndarray
 
     @classmethod
-    def make(cls, img: np.ndarray, hole: np.ndarray, r: int) -> _Level:
+    def make(cls, img: np.ndarray, hole: np.ndarray, r: int, surfaces: np.ndarray) -> _Level:
         h, w = hole.shape
         kernel = np.ones((2 * r + 1, 2 * r + 1), np.uint8)
-        valid = cv2.erode((~hole).astype(np.uint8), kernel, borderType=cv2.BORDER_CONSTANT, borderValue=0)
+        valid = cv2.erode((~hole).astype(np.uint8), kernel, borderType=cv2.BORDER_CONSTANT, borderValue=0) > 0
         touch = cv2.dilate(hole.astype(np.uint8), kernel) > 0
         ty, tx = np.nonzero(touch)
         tid = np.full((h, w), -1, np.int32)
         tid[ty, tx] = np.arange(ty.size, dtype=np.int32)
         hy, hx = np.nonzero(hole)
-        return cls(img, hole, valid.astype(np.bool_), ty.astype(np.int32), tx.astype(np.int32), tid, hy, hx)
+        slab = np.ascontiguousarray(cv2.resize(surfaces, (w, h), interpolation=cv2.INTER_NEAREST))
+        tlab = slab[ty, tx]
+        sources = np.bincount(slab[valid], minlength=int(slab.max()) + 1)
+        targets = np.bincount(tlab, minlength=sources.size)
+        thin = sources < np.maximum(_MIN_SURFACE_SOURCES * targets, (2 * r + 1) ** 2)
+        tlab = np.where(thin[tlab] | (sources.size == 1), -1, tlab).astype(np.int32)
+        return cls(img, hole, valid, ty.astype(np.int32), tx.astype(np.int32), tid, hy, hx, slab, tlab)
 
 
 def _downsample(img: np.ndarray, hole: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -317,6 +353,9 @@ def complete(image: np.ndarray, hole: np.ndarray, settings: ExemplarSettings | N
     # Texture features (Newson et al. 2017): mean absolute x and y derivatives over a window as wide
     # as a coarsest-level pixel, computed at the finest searched level and carried down the pyramid,
     # so that coarse matching, where the image itself is smooth, still tells textured from flat.
+    # Each hole pixel is copied from its own surface (see surfaces.py), and its structure diffused
+    # from that surface's ring only.
+    surfaces = segment(imgs[0], holes[0], side)
     imgs = _with_features(imgs[0], holes)
 
     # Coarsest level: diffusion for the structure.
@@ -336,7 +375,7 @@ def complete(image: np.ndarray, hole: np.ndarray, settings: ExemplarSettings | N
         prev: _Level | None = None
         n_levels = len(imgs)
         for li in range(n_levels - 1, -1, -1):
-            lev = _Level.make(np.ascontiguousarray(imgs[li]), holes[li], r)
+            lev = _Level.make(np.ascontiguousarray(imgs[li]), holes[li], r, surfaces)
             nnf = _init_nnf(lev, prev, nnf, s.seed + top + li)
             prev = lev
             # Small levels in this thread: handing them to the pool costs more than they do.
@@ -358,21 +397,35 @@ def complete(image: np.ndarray, hole: np.ndarray, settings: ExemplarSettings | N
                 _distances_parallel(pool, lev, nnf, dist, r)
     finally:
         workers.shutdown()
-    diffused = None
+    structure = low = None
     if s.structure_sigma > 0:
-        # Large-scale structure from diffusion (Telea), texture from the exemplars: a misplaced
-        # exemplar structure costs twice in error, a diffused one once. Diffused at the finest
-        # searched level: at 4K a full-resolution Telea alone would cost more than the search.
-        diffused = np.clip(np.rint(prev.img[..., :3] * 255.0), 0, 255).astype(np.uint8)
-        if top == 0:
-            diffused = image
-        diffused = cv2.inpaint(diffused, holes[0].astype(np.uint8), 5.0 / 2**top, cv2.INPAINT_TELEA)
-    _assemble(out, image, hole, prev, nnf, top, diffused, s.structure_sigma)
+        # Large-scale structure from diffusion, texture from the exemplars: a misplaced exemplar
+        # structure costs twice in error, a diffused one once. Each surface is diffused from its own
+        # known pixels (a membrane with a free edge where surfaces meet), so the wall's colour does
+        # not bleed onto the ground, at the finest searched level (at 4K a full-resolution
+        # diffusion alone would cost more than the search). What is copied is each source pixel's
+        # detail, its difference from the mean of the known pixels of its surface around it: the
+        # mean of the pasted mosaic would put a light halo round a dark copy, and one taken across
+        # surfaces would blur the line where they meet.
+        colour = prev.img[..., :3] * 255.0
+        known = ~holes[0]
+        sigma = s.structure_sigma / 2**top
+        structure, low = np.empty_like(colour), np.empty_like(colour)
+        for lab in range(int(surfaces.max()) + 1):
+            on = surfaces == lab
+            if not (on & known).any():
+                continue
+            diffused = membrane_fill(colour, known & on, on)
+            structure[on] = _local_mean(diffused, on, sigma)[on]
+            low[on] = _local_mean(colour, known & on, sigma)[on]
+    _assemble(out, image, hole, prev, nnf, top, structure, low)
     return out
 
 
 #: Rows per strip of the full-resolution passes (see :func:`_assemble`).
 _STRIP_ROWS = 256
+#: Stands for "no mean to subtract" in :func:`_copy_matches` (numba wants an array).
+_NO_LOW = np.zeros((1, 1, 3), np.float32)
 
 
 def _deeper_than(hole: np.ndarray, px: float) -> bool:
@@ -412,35 +465,38 @@ def _assemble(
     lev: _Level,
     nnf: np.ndarray,
     top: int,
-    diffused: np.ndarray | None,
-    sigma: float,
+    structure: np.ndarray | None,
+    low: np.ndarray | None,
 ) -> None:
     """Writes ``out``'s hole pixels: each the known pixel its searched-level patch's match points at
     (scaled up ``2**top``; not averaged over overlapping patches, which would blur what does not line
-    up, Newson et al.), with the structure above the Gaussian scale ``sigma`` taken from
-    ``diffused`` (that level's diffusion) when given. In row strips: at 58 MP whole-image float
-    copies cost gigabytes."""
+    up, Newson et al.); with a ``structure`` (0-255, level ``top``), that scaled up plus the copied
+    pixel's difference from ``low`` (level ``top``) there. In row strips: at 58 MP whole-image
+    float copies cost gigabytes."""
     h, w = hole.shape
     f = 1 << top
-    radius = int(np.ceil(4.0 * sigma))
-    margin = radius + f if diffused is not None else 0
     for a in range(0, h, _STRIP_ROWS):
         b = min(a + _STRIP_ROWS, h)
         if not hole[a:b].any():
             continue
-        a0, b0 = max(a - margin, 0), min(b + margin, h)
-        tex = image[a0:b0].astype(np.float32)
-        _copy_matches(image, hole, lev.tid, nnf, top, a0, tex)
-        if diffused is not None:
-            # The diffusion scaled up over these rows only (one coarse row either side, so that
-            # the interpolation matches a whole-image resize), then its large scales swapped in.
-            c0, c1 = max(a0 // f - 1, 0), min(-(-b0 // f) + 1, diffused.shape[0])
-            big = cv2.resize(diffused[c0:c1], None, fx=f, fy=f, interpolation=cv2.INTER_LINEAR)
-            big = big[a0 - c0 * f : b0 - c0 * f, :w].astype(np.float32)
-            k = (2 * radius + 1, 2 * radius + 1)
-            tex += cv2.GaussianBlur(big, k, sigma) - cv2.GaussianBlur(tex, k, sigma)
+        if structure is None:
+            tex = np.zeros((b - a, w, 3), np.float32)
+            _copy_matches(image, hole, lev.tid, nnf, top, a, tex, _NO_LOW, False)
+        else:
+            # Scaled up over these rows only, one coarse row either side so that the
+            # interpolation is a whole-image resize's.
+            c0, c1 = max(a // f - 1, 0), min(-(-b // f) + 1, structure.shape[0])
+            tex = cv2.resize(structure[c0:c1], None, fx=f, fy=f, interpolation=cv2.INTER_LINEAR)
+            tex = np.ascontiguousarray(tex[a - c0 * f : b - c0 * f, :w])
+            _copy_matches(image, hole, lev.tid, nnf, top, a, tex, low, True)
         part = hole[a:b]
-        out[a:b][part] = np.clip(np.rint(tex[a - a0 : b - a0][part]), 0, 255).astype(np.uint8)
+        out[a:b][part] = np.clip(np.rint(tex[part]), 0, 255).astype(np.uint8)
+
+
+def _local_mean(values: np.ndarray, weight: np.ndarray, sigma: float) -> np.ndarray:
+    """Gaussian mean (scale ``sigma``) of ``values`` over the pixels where ``weight`` is True."""
+    w = cv2.GaussianBlur(weight.astype(np.float32), (0, 0), sigma)
+    return cv2.GaussianBlur(values * weight[..., None], (0, 0), sigma) / np.maximum(w, 1e-6)[..., None]
 
 
 def _has_patch(hole: np.ndarray, side: int) -> bool:
@@ -488,11 +544,14 @@ def _weights(dist: np.ndarray, r: int) -> np.ndarray:
 
 def _init_nnf(lev: _Level, prev: _Level | None, prev_nnf: np.ndarray | None, seed: int) -> np.ndarray:
     """Matches for this level's targets: the coarser level's doubled (where that is a valid source
-    here), else a random valid source."""
-    vy, vx = np.nonzero(lev.valid)
+    of the target's surface here), else a random valid source of its surface."""
     rng = np.random.default_rng(seed)
-    pick = rng.integers(0, vy.size, lev.ty.size)
-    nnf = np.stack([vy[pick], vx[pick]], axis=1).astype(np.int64)
+    nnf = np.empty((lev.ty.size, 2), np.int64)
+    for lab in np.unique(lev.tlab):
+        vy, vx = np.nonzero(lev.valid & (lev.slab == lab)) if lab >= 0 else np.nonzero(lev.valid)
+        mine = np.flatnonzero(lev.tlab == lab)
+        pick = rng.integers(0, vy.size, mine.size)
+        nnf[mine, 0], nnf[mine, 1] = vy[pick], vx[pick]
     if prev is not None and prev_nnf is not None:
         cy = np.minimum(lev.ty // 2, prev.tid.shape[0] - 1)
         cx = np.minimum(lev.tx // 2, prev.tid.shape[1] - 1)
@@ -503,6 +562,8 @@ def _init_nnf(lev: _Level, prev: _Level | None, prev_nnf: np.ndarray | None, see
         h, w = lev.hole.shape
         ok = (sy < h) & (sx < w)
         ok[ok] = lev.valid[sy[ok], sx[ok]]
+        tl = lev.tlab[has]
+        ok[ok] = (tl[ok] < 0) | (lev.slab[sy[ok], sx[ok]] == tl[ok])
         idx = np.flatnonzero(has)[ok]
         nnf[idx, 0], nnf[idx, 1] = sy[ok], sx[ok]
     return np.ascontiguousarray(nnf)
@@ -521,7 +582,22 @@ def _search_parallel(pool, lev, nnf, dist, bands, step, radius, seed, r) -> None
     parts = [bands[i :: 2 * _workers()] for i in range(2 * _workers())]
     _map(
         pool,
-        lambda b: _search(lev.img, lev.valid, lev.tid, lev.ty, lev.tx, nnf, dist, b, step, radius, seed, r),
+        lambda b: _search(
+            lev.img,
+            lev.valid,
+            lev.slab,
+            lev.tlab,
+            lev.tid,
+            lev.ty,
+            lev.tx,
+            nnf,
+            dist,
+            b,
+            step,
+            radius,
+            seed,
+            r,
+        ),
         [p for p in parts if len(p)],
     )
 
