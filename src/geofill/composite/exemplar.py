@@ -1,22 +1,30 @@
 """Multi-scale exemplar-based completion: Wexler, Shechtman & Irani (2007) with PatchMatch search
 (Barnes et al. 2009), the method behind Photoshop's content-aware fill, with Newson et al.'s (2017)
-texture features, and the large-scale structure taken from Telea's diffusion.
+texture features, each surface around the hole filled from itself, and the large-scale structure
+diffused per surface.
 
-Each hole pixel is copied from patches of the known image (in a reference fill: the target and the
-pasted render, see :mod:`geofill.composite.merge`). At every level of an image pyramid, coarse to
-fine, a PatchMatch search finds for each patch touching the hole its nearest known patch, and each
-hole pixel becomes the similarity-weighted mean of what those patches put on it (search, vote,
-repeat). Patches are compared on colour and on texture features (mean absolute derivatives over a
-coarsest-pixel window, computed at full resolution): without them coarse matching, where every
-region is smooth, settles on flat sources and the fill comes out a smear again (gradient-energy
-ratio 0.57 instead of 0.9 on 3 DEV pairs). The coarsest level starts from Telea; each finer level
-starts from the coarser one's matches doubled and only refines them (a 14-px search); the finest
-level's pixels are taken from their own patch's match, not averaged, which would blur.
+The known pixels are first split into surfaces (:mod:`geofill.composite.surfaces`: a wall, the
+ground), extended into the hole, the line where two meet continued straight across it. Each hole
+pixel is copied from patches of the known image of its own surface (in a reference fill: the
+target and the pasted render, see :mod:`geofill.composite.merge`). At every level of an image
+pyramid, coarse to fine, a PatchMatch search finds for each patch touching the hole its nearest
+known patch, and each hole pixel becomes the similarity-weighted mean of what those patches put on
+it (search, vote, repeat). Patches are compared on colour and on texture features (mean absolute
+derivatives over a coarsest-pixel window, computed at full resolution): without them coarse
+matching, where every region is smooth, settles on flat sources and the fill comes out a smear
+again (gradient-energy ratio 0.57 instead of 0.9 on 3 DEV pairs). The coarsest level starts from
+Telea; each finer level starts from the coarser one's matches doubled and only refines them (a
+14-px search); the finest level's pixels are taken from their own patch's match, not averaged,
+which would blur.
 
-Finally the fill keeps the exemplars' detail below a Gaussian scale ``structure_sigma`` and takes
-what is above it from Telea's diffusion: a misplaced exemplar structure costs twice in error, a
-diffused one once. On the DEV fallback cases this costs 0.4 dB of hole PSNR against Telea where
-exemplars alone cost 4.5 dB, at a gradient ratio of 0.9 either way (docs/architecture.md).
+Finally each hole pixel is its surface's diffusion (a membrane from the surface's known pixels),
+blurred at the Gaussian scale ``structure_sigma``, plus the copied pixel's detail: its difference
+from the mean of its own surface's known pixels around it at that scale. A misplaced exemplar
+structure costs twice in error, a diffused one once; detail measured in its own context puts no
+light halo round a dark copy, as the difference from the pasted mosaic's own mean did.
+
+Levels longer than 1400 px are not searched, and memory is bounded by the searched levels: the
+finer ones are never held whole, the full-resolution result is assembled in row strips.
 
 Hand-written with numba because no library does it within the time bounds: OpenCV contrib's
 ``xphoto.inpaint`` (SHIFTMAP, FSR) and PyPatchMatch take 5-30 s per 720-px fill (docs/results.md).

@@ -126,7 +126,7 @@ def _extend(labels: np.ndarray, hole: np.ndarray) -> None:
 def _straighten(labels: np.ndarray, hole: np.ndarray, image: np.ndarray, ring_px: int) -> None:
     """In place: where two surfaces meet along a straight line on the ring ``ring_px`` wide around
     the hole, the line is moved (by up to half that) to the strongest colour step across it on the
-    ring (averaged appearance places a boundary a few pixels off), and their pixels within
+    ring (averaged appearance places a boundary a few pixels off), and their ring pixels within
     ``ring_px`` of it, and all of their hole pixels, are split by it."""
     disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * ring_px + 1,) * 2)
     near = cv2.dilate(hole.astype(np.uint8), disc)
@@ -155,7 +155,7 @@ def _straighten(labels: np.ndarray, hole: np.ndarray, image: np.ndarray, ring_px
             side_a = np.sign(np.median(dist[ry, rx])) if ry.size else 0.0
             if side_a == 0:
                 continue
-            redo = pair & (hole | (np.abs(dist) <= ring_px))
+            redo = pair & (hole | (ring & (np.abs(dist) <= ring_px)))
             labels[redo] = np.where(np.sign(dist[redo]) == side_a, a, b)
 
 
