@@ -29,9 +29,13 @@ _BLEND = 0.25
 _SAMPLES = 20_000
 #: Weight of the texture energy (mean absolute Laplacian of L, 0-100 scale) against colour.
 _TEXTURE_WEIGHT = 1.5
-#: A meeting line is straight when this share of the boundary pixels lies within _LINE_PX of it.
-_LINE_INLIERS = 0.7
+#: A meeting line is straight when this share of the boundary pixels lies within _LINE_PX of it
+#: (the rest: where the boundary turns, or runs along the hole's edge).
+_LINE_INLIERS = 0.4
 _LINE_PX = 2.0
+#: Lines tried (through two boundary pixels each) in the search for the dominant one.
+_LINE_TRIALS = 200
+_LINE_POINTS = 4000
 
 
 def segment(image: np.ndarray, hole: np.ndarray, patch_px: int) -> np.ndarray:
@@ -140,11 +144,10 @@ def _straighten(labels: np.ndarray, hole: np.ndarray, image: np.ndarray, ring_px
             ys, xs = np.nonzero(edge)
             if ys.size < 2 * ring_px:
                 continue
-            pts = np.stack([xs, ys], axis=1).astype(np.float32)
-            vx, vy, x0, y0 = cv2.fitLine(pts, cv2.DIST_HUBER, 0, 0.01, 0.01).ravel()
-            off = (xs - x0) * vy - (ys - y0) * vx  # signed distance to the line
-            if np.mean(np.abs(off) <= _LINE_PX) < _LINE_INLIERS:
+            line = _dominant_line(xs, ys)
+            if line is None:
                 continue
+            vx, vy, x0, y0 = line
             pair = (labels == a) | (labels == b)
             dist = (xx - x0) * vy - (yy - y0) * vx
             band = ring & pair & (np.abs(dist) <= ring_px)
@@ -157,6 +160,33 @@ def _straighten(labels: np.ndarray, hole: np.ndarray, image: np.ndarray, ring_px
                 continue
             redo = pair & (hole | (ring & (np.abs(dist) <= ring_px)))
             labels[redo] = np.where(np.sign(dist[redo]) == side_a, a, b)
+
+
+def _dominant_line(xs: np.ndarray, ys: np.ndarray) -> tuple[float, float, float, float] | None:
+    """The line (direction vx, vy through x0, y0) through most of the points, refined on those
+    within _LINE_PX of it, or None when it holds less than _LINE_INLIERS of them. RANSAC with a
+    fixed seed: the same answer every run."""
+    rng = np.random.default_rng(0)
+    if xs.size > _LINE_POINTS:  # scored on a sample: trials x points distances
+        pick = rng.choice(xs.size, _LINE_POINTS, replace=False)
+        xs, ys = xs[pick], ys[pick]
+    i, j = rng.integers(0, xs.size, (2, _LINE_TRIALS))
+    keep = (xs[i] != xs[j]) | (ys[i] != ys[j])
+    i, j = i[keep], j[keep]
+    dx, dy = (xs[j] - xs[i]).astype(np.float64), (ys[j] - ys[i]).astype(np.float64)
+    norm = np.hypot(dx, dy)
+    # Distance of every point to every trial line, one trial per row.
+    off = (
+        np.abs((xs[None] - xs[i, None]) * dy[:, None] - (ys[None] - ys[i, None]) * dx[:, None])
+        / norm[:, None]
+    )
+    near = off <= _LINE_PX
+    best = int(np.argmax(near.sum(axis=1))) if near.size else 0
+    if not near.size or near[best].mean() < _LINE_INLIERS:
+        return None
+    pts = np.stack([xs[near[best]], ys[near[best]]], axis=1).astype(np.float32)
+    vx, vy, x0, y0 = cv2.fitLine(pts, cv2.DIST_L2, 0, 0.01, 0.01).ravel()
+    return float(vx), float(vy), float(x0), float(y0)
 
 
 def _step(dist: np.ndarray, colour: np.ndarray, at: float) -> float:
