@@ -418,7 +418,7 @@ def complete(image: np.ndarray, hole: np.ndarray, settings: ExemplarSettings | N
         colour = prev.img[..., :3] * 255.0
         known = ~holes[0]
         sigma = s.structure_sigma / 2**top
-        structure, low = np.empty_like(colour), np.empty_like(colour)
+        structure, low = colour.copy(), colour.copy()
         for lab in range(int(surfaces.max()) + 1):
             on = surfaces == lab
             if not (on & known).any():
