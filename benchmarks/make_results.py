@@ -159,6 +159,26 @@ SECTIONS = [
         "painter.md",
     ),
     Section(
+        "painter_surfaces",
+        "The surface-aware painter against Telea, with its peak memory (`benchmarks/quality/painter.py`)",
+        "As `painter`, Telea and the default painter only (each hole pixel copied from its own surface, "
+        "structure diffused per surface), timed three times, and the painter's peak resident memory on a "
+        "7600x7600 photo with an 89 % hole (each painter in its own process). The `painter` section above "
+        "holds the painter before surfaces, for comparison.",
+        [
+            PY,
+            "benchmarks/quality/painter.py",
+            "--out",
+            "{out}",
+            "--painters",
+            "telea,exemplar",
+            "--repeats",
+            "3",
+        ]
+        + ["--memory"],
+        "painter.md",
+    ),
+    Section(
         "painter_fills",
         "The painter inside reference fills (`geofill eval --methods geofill,geofill_telea`)",
         "The default (exemplar painter for what the references leave uncovered) against the `telea` preset "

@@ -15,6 +15,16 @@ Time: a 1280x720 and a 3840x2160 crop of a DEV target with a 15 % stroke hole (a
 time and, in brackets, the process's CPU time (all threads; less disturbed by other processes on a
 shared machine than the wall time).
 
+Memory (``--memory``): each timed painter in a fresh process on the DEV Berlin photo scaled to
+``--memory-size`` (default 7600x7600, 58 MP) with a centred rectangular hole of 89 %: the peak
+resident set (ru_maxrss) of the painting process, and the same process's peak before painting.
+
+Removals (``--removals``): the real removals of ``removal_cases.py`` plus a 120-px disc brushed over
+Berlin cathedral's carved pediment, each filled with the default configuration (references, then
+the painter for what they leave) and painted whole by the painter alone; the crops round the hole
+go to ``DIR/removal_<case>.png``. ``--compare DIR2`` puts DIR2's crops (a run with another painter,
+e.g. an older checkout) beside them in ``DIR/compare_<case>.png``.
+
 Writes ``DIR/painter.json`` (every number) and ``DIR/painter.md`` (the tables, for
 docs/results.md) and, with ``--sheets``, contact sheets (truth | hole | each painter) there.
 """
@@ -212,7 +222,90 @@ def timing(painters: dict, repeats: int) -> list[dict]:
     return out
 
 
-def markdown(rows: dict, times: list[dict], names: list[str]) -> str:
+_MEMORY_SCRIPT = """
+import resource, sys, time
+import cv2
+import numpy as np
+from geofill.composite.inpaint import get_inpainter
+from geofill.config import InpaintConfig
+from geofill.evaluation.pairs import load_pair
+
+method, side, folder = sys.argv[1], int(sys.argv[2]), sys.argv[3]
+inp = get_inpainter(InpaintConfig(method=method))
+warm = np.zeros((300, 300), bool)
+warm[20:280, 20:280] = True
+inp.fill(np.full((300, 300, 3), 128, np.uint8), warm)  # compiled before anything is measured
+img = cv2.resize(load_pair(folder).target, (side, side), interpolation=cv2.INTER_CUBIC)
+hole = np.zeros((side, side), bool)
+m = round(side * (1 - 0.89**0.5) / 2)
+hole[m : side - m, m : side - m] = True
+before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+t0 = time.perf_counter()
+inp.fill(img, hole)
+dt = time.perf_counter() - t0
+print(float(hole.mean()), before / 1024, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, dt)
+"""
+
+
+def memory(names: list[str], side: int) -> list[dict]:
+    """Peak resident memory (MiB) of each painter on a ``side`` x ``side`` photo with an 89 % hole,
+    each in its own process."""
+    import subprocess
+
+    rows = []
+    for name in names:
+        folder = str(PAIRS / "dev_opensfm_berlin_01_02")
+        done = subprocess.run(
+            [sys.executable, "-c", _MEMORY_SCRIPT, name, str(side), folder],
+            capture_output=True,
+            text=True,
+            check=True,
+        )
+        share, before, peak, dt = (float(v) for v in done.stdout.split())
+        row = {"painter": name, "size": f"{side}x{side}", "hole": share, "rss_before_mib": before}
+        row |= {"peak_rss_mib": peak, "time": dt}
+        print(row, flush=True)
+        rows.append(row)
+    return rows
+
+
+def removals(out: Path, compare: Path | None) -> None:
+    """Crops of the real removals' fills and single-image paintings (see the module docstring)."""
+    from benchmarks.quality.removal_cases import CASES, _crop, _tile, brushed
+
+    from geofill.composite.inpaint import inpaint_single
+    from geofill.config import FillConfig
+    from geofill.evaluation.pairs import load_pair
+    from geofill.pipeline import fill
+
+    cfg = FillConfig()
+    yy, xx = np.mgrid[0:960, 0:1280]
+    pediment = (
+        "berlin_pediment",
+        PAIRS / "dev_opensfm_berlin_01_02",
+        (yy - 470) ** 2 + (xx - 672) ** 2 <= 60**2,
+    )
+    for name, folder, polygons in [*CASES, pediment]:
+        pair = load_pair(folder)
+        hole = polygons if isinstance(polygons, np.ndarray) else brushed(pair.target.shape, polygons)
+        exif = {"target_exif": pair.exif.target, "source_exifs": list(pair.exif.sources)}
+        filled = fill(pair.target, hole, pair.sources, cfg, **exif)
+        painted = inpaint_single(pair.target, hole, cfg.inpaint)
+        shown = pair.target.copy()
+        shown[hole] = (0.5 * shown[hole] + [127, 0, 127]).astype(np.uint8)
+        print(f"{name}: {100 * filled.report.painted_fraction:.0f} % of the hole painted", flush=True)
+        tiles = [_crop(shown, hole), _crop(filled.image, hole), _crop(painted, hole)]
+        row = np.concatenate(
+            [_tile(t, lab) for t, lab in zip(tiles, ("hole", "fill", "painter alone"), strict=True)], 1
+        )
+        cv2.imwrite(str(out / f"removal_{name}.png"), cv2.cvtColor(row, cv2.COLOR_RGB2BGR))
+        if compare is not None and (compare / f"removal_{name}.png").exists():
+            other = cv2.imread(str(compare / f"removal_{name}.png"))
+            sheet = np.concatenate([other, cv2.cvtColor(row, cv2.COLOR_RGB2BGR)], 0)
+            cv2.imwrite(str(out / f"compare_{name}.png"), sheet)
+
+
+def markdown(rows: dict, times: list[dict], names: list[str], mem: list[dict] | None = None) -> str:
     lines = [
         "| painter | hole PSNR (dB) | hole SSIM | gradient ratio | patch distance | time (median s) |",
         "| --- | --- | --- | --- | --- | --- |",
@@ -235,6 +328,17 @@ def markdown(rows: dict, times: list[dict], names: list[str]) -> str:
         for row in times:
             cells = " | ".join(f"{row[n]:.2f} s ({row[n + ' cpu']:.2f} s)" for n in timed)
             lines.append(f"| {row['size']} | {100 * row['hole']:.0f} % | {row['load']:.1f} | {cells} |")
+    if mem:
+        lines += [
+            "",
+            "| painter | image | hole | peak RSS before painting (MiB) | peak RSS (MiB) | time (s) |",
+            "| --- | --- | --- | --- | --- | --- |",
+        ]
+        for m in mem:
+            lines.append(
+                f"| {m['painter']} | {m['size']} | {100 * m['hole']:.0f} % | {m['rss_before_mib']:.0f} | "
+                f"{m['peak_rss_mib']:.0f} | {m['time']:.1f} |"
+            )
     return "\n".join(lines) + "\n"
 
 
@@ -246,6 +350,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--pairs", type=int, default=8, help="first N DEV pairs")
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--sheets", action="store_true", help="write contact sheets to --out")
+    ap.add_argument("--removals", action="store_true", help="crops of the real removals (see above)")
+    ap.add_argument("--compare", type=Path, help="with --removals: a folder of another run's crops")
+    ap.add_argument("--memory", action="store_true", help="measure the timed painters' peak RSS")
+    ap.add_argument("--memory-size", type=int, default=7600, help="side (px) of the --memory photo")
     args = ap.parse_args(argv)
     available = _painters()
     names = args.painters.split(",")
@@ -261,11 +369,16 @@ def main(argv: list[str] | None = None) -> int:
     for n in set(names + timed) & {"exemplar"}:
         available[n](warm, warm_hole)
     print(f"load {os.getloadavg()}", flush=True)
+    if args.removals:
+        removals(args.out, args.compare)
+        return 0
     rows = quality({n: available[n] for n in names}, dev_pairs(args.pairs), args.out if args.sheets else None)
     times = timing({n: available[n] for n in timed}, args.repeats) if timed else []
-    (args.out / "painter.json").write_text(json.dumps({"quality": rows, "timing": times}, indent=1))
-    (args.out / "painter.md").write_text(markdown(rows, times, names))
-    print(markdown(rows, times, names))
+    mem = memory(timed, args.memory_size) if args.memory else []
+    numbers = {"quality": rows, "timing": times, "memory": mem}
+    (args.out / "painter.json").write_text(json.dumps(numbers, indent=1))
+    (args.out / "painter.md").write_text(markdown(rows, times, names, mem))
+    print(markdown(rows, times, names, mem))
     return 0
 
 

@@ -16,7 +16,15 @@ import typing
 from pathlib import Path
 
 from .config import PRESETS, Cost, DepthConfig, FillConfig, choices, marked_keys, parse_overrides
-from .errors import EXIT_FELL_BACK, EXIT_ITEMS_FAILED, ConfigError, GeoFillError, OutputError, Terminated
+from .errors import (
+    EXIT_FELL_BACK,
+    EXIT_ITEMS_FAILED,
+    EXIT_OUT_OF_MEMORY,
+    ConfigError,
+    GeoFillError,
+    OutputError,
+    Terminated,
+)
 from .formats import FORMAT_SUFFIXES
 from .progress import Progress
 
@@ -577,6 +585,11 @@ def main(argv: list[str] | None = None) -> int:
     except GeoFillError as exc:
         print(f"geofill: error: {exc}", file=sys.stderr)
         return exc.exit_code
+    except MemoryError as exc:
+        # numpy's message names the allocation that failed; the atomic write leaves no half output.
+        said = f": {exc}" if str(exc) else ""
+        print(f"geofill: error: out of memory{said}; nothing was written", file=sys.stderr)
+        return EXIT_OUT_OF_MEMORY
     except KeyboardInterrupt:
         print("geofill: interrupted", file=sys.stderr)
         return 130

@@ -108,6 +108,8 @@ EXIT_FELL_BACK = 5
 #: Exit status of a batch in which at least one item failed (its reason is in results.jsonl);
 #: 6 is a fill's exceeded time budget.
 EXIT_ITEMS_FAILED = 7
+#: Exit status when the machine ran out of memory (a MemoryError reached the CLI; nothing is written).
+EXIT_OUT_OF_MEMORY = 8
 #: Exit status after Ctrl-C (128 + SIGINT, the shell's convention).
 EXIT_INTERRUPTED = 130
 #: Exit status after SIGTERM (128 + SIGTERM).

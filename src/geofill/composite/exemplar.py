@@ -1,22 +1,30 @@
 """Multi-scale exemplar-based completion: Wexler, Shechtman & Irani (2007) with PatchMatch search
 (Barnes et al. 2009), the method behind Photoshop's content-aware fill, with Newson et al.'s (2017)
-texture features, and the large-scale structure taken from Telea's diffusion.
+texture features, each surface around the hole filled from itself, and the large-scale structure
+diffused per surface.
 
-Each hole pixel is copied from patches of the known image (in a reference fill: the target and the
-pasted render, see :mod:`geofill.composite.merge`). At every level of an image pyramid, coarse to
-fine, a PatchMatch search finds for each patch touching the hole its nearest known patch, and each
-hole pixel becomes the similarity-weighted mean of what those patches put on it (search, vote,
-repeat). Patches are compared on colour and on texture features (mean absolute derivatives over a
-coarsest-pixel window, computed at full resolution): without them coarse matching, where every
-region is smooth, settles on flat sources and the fill comes out a smear again (gradient-energy
-ratio 0.57 instead of 0.9 on 3 DEV pairs). The coarsest level starts from Telea; each finer level
-starts from the coarser one's matches doubled and only refines them (a 14-px search); the finest
-level's pixels are taken from their own patch's match, not averaged, which would blur.
+The known pixels are first split into surfaces (:mod:`geofill.composite.surfaces`: a wall, the
+ground), extended into the hole, the line where two meet continued straight across it. Each hole
+pixel is copied from patches of the known image of its own surface (in a reference fill: the
+target and the pasted render, see :mod:`geofill.composite.merge`). At every level of an image
+pyramid, coarse to fine, a PatchMatch search finds for each patch touching the hole its nearest
+known patch, and each hole pixel becomes the similarity-weighted mean of what those patches put on
+it (search, vote, repeat). Patches are compared on colour and on texture features (mean absolute
+derivatives over a coarsest-pixel window, computed at full resolution): without them coarse
+matching, where every region is smooth, settles on flat sources and the fill comes out a smear
+again (gradient-energy ratio 0.57 instead of 0.9 on 3 DEV pairs). The coarsest level starts from
+Telea; each finer level starts from the coarser one's matches doubled and only refines them (a
+14-px search); the finest level's pixels are taken from their own patch's match, not averaged,
+which would blur.
 
-Finally the fill keeps the exemplars' detail below a Gaussian scale ``structure_sigma`` and takes
-what is above it from Telea's diffusion: a misplaced exemplar structure costs twice in error, a
-diffused one once. On the DEV fallback cases this costs 0.4 dB of hole PSNR against Telea where
-exemplars alone cost 4.5 dB, at a gradient ratio of 0.9 either way (docs/architecture.md).
+Finally each hole pixel is its surface's diffusion (a membrane from the surface's known pixels),
+blurred at the Gaussian scale ``structure_sigma``, plus the copied pixel's detail: its difference
+from the mean of its own surface's known pixels around it at that scale. A misplaced exemplar
+structure costs twice in error, a diffused one once; detail measured in its own context puts no
+light halo round a dark copy, as the difference from the pasted mosaic's own mean did.
+
+Levels longer than 1400 px are not searched, and memory is bounded by the searched levels: the
+finer ones are never held whole, the full-resolution result is assembled in row strips.
 
 Hand-written with numba because no library does it within the time bounds: OpenCV contrib's
 ``xphoto.inpaint`` (SHIFTMAP, FSR) and PyPatchMatch take 5-30 s per 720-px fill (docs/results.md).
@@ -38,6 +46,8 @@ import numpy as np
 
 from ..utils.distance import distance_to
 from ..utils.jit import njit_cached
+from ..utils.membrane import membrane_fill
+from .surfaces import segment
 
 #: Rows per search band (one thread's unit of work); odd iterations shift the bands by half of it.
 _BAND_ROWS = 24
@@ -56,6 +66,9 @@ _FEATURE_WEIGHT = 60.0
 _SEARCH_LONG_SIDE = 1400
 #: Random-search radius at the levels below the coarsest, in patch widths.
 _REFINE_RADIUS_PATCHES = 2
+#: A surface is filled from itself only when it has at least this many known patches per target
+#: patch (else from anywhere: a few patches copied over a large area repeat visibly).
+_MIN_SURFACE_SOURCES = 0.1
 #: Levels with fewer target patches than this run in the calling thread.
 _PARALLEL_MIN_TARGETS = 20_000
 
@@ -113,10 +126,11 @@ def _ssd(img, ty, tx, sy, sx, r, bound):  # pragma: no cover - compiled
 
 
 @njit_cached(nogil=True, fastmath=True)
-def _search(img, valid, tid, ty, tx, nnf, dist, bands, step, radius, seed, r):  # pragma: no cover
+def _search(img, valid, slab, tlab, tid, ty, tx, nnf, dist, bands, step, radius, seed, r):  # pragma: no cover
     # One PatchMatch pass over the bands listed in ``bands`` (rows: first, last+1 target index):
     # propagation from the previous neighbour in scan order (left/up for step 1, right/down for
     # step -1, inside the band only), then a random search around the best match at halving radii.
+    # A target with a surface (``tlab`` >= 0) takes sources of that surface (``slab``) only.
     h, w = img.shape[0], img.shape[1]
     for b in range(bands.shape[0]):
         lo, hi = bands[b, 0], bands[b, 1]
@@ -124,6 +138,7 @@ def _search(img, valid, tid, ty, tx, nnf, dist, bands, step, radius, seed, r):  
         for i in range(n):
             k = lo + i if step > 0 else hi - 1 - i
             y, x = ty[k], tx[k]
+            tl = tlab[k]
             by, bx, best = nnf[k, 0], nnf[k, 1], dist[k]
             for nb in range(2):
                 py, px = (y, x - step) if nb == 0 else (y - step, x)
@@ -135,6 +150,8 @@ def _search(img, valid, tid, ty, tx, nnf, dist, bands, step, radius, seed, r):  
                 cy = nnf[j, 0] + (y - py)
                 cx = nnf[j, 1] + (x - px)
                 if cy < 0 or cy >= h or cx < 0 or cx >= w or not valid[cy, cx]:
+                    continue
+                if tl >= 0 and slab[cy, cx] != tl:
                     continue
                 if cy == by and cx == bx:
                     continue
@@ -150,6 +167,8 @@ def _search(img, valid, tid, ty, tx, nnf, dist, bands, step, radius, seed, r):  
                 t += 1
                 rad = rad // 2
                 if cy < 0 or cy >= h or cx < 0 or cx >= w or not valid[cy, cx]:
+                    continue
+                if tl >= 0 and slab[cy, cx] != tl:
                     continue
                 d = _ssd(img, y, x, cy, cx, r, best)
                 if d < best:
@@ -194,6 +213,39 @@ def _distances(img, ty, tx, nnf, dist, lo, hi, r):  # pragma: no cover - compile
         dist[k] = _ssd(img, ty[k], tx[k], nnf[k, 0], nnf[k, 1], r, np.inf)
 
 
+@njit_cached(nogil=True)
+def _copy_matches(image, hole, tid, nnf, top, a0, tex, low, detail):  # pragma: no cover - compiled
+    # Each hole pixel of rows a0.. (as many as ``tex`` has) from the full-resolution pixel its
+    # level-``top`` patch's match points at (a match's patch is known there, so that pixel is too);
+    # with ``detail``, added to ``tex`` less ``low`` (level ``top``) there, bilinearly interpolated.
+    h, w = hole.shape
+    m = (1 << top) - 1
+    f = float(1 << top)
+    lh, lw = low.shape[0], low.shape[1]
+    for i in range(tex.shape[0]):
+        y = a0 + i
+        for x in range(w):
+            if not hole[y, x]:
+                continue
+            j = tid[y >> top, x >> top]
+            sy = min((nnf[j, 0] << top) + (y & m), h - 1)
+            sx = min((nnf[j, 1] << top) + (x & m), w - 1)
+            if not detail:
+                for c in range(tex.shape[2]):
+                    tex[i, x, c] = image[sy, sx, c]
+                continue
+            u = min(max((sy + 0.5) / f - 0.5, 0.0), lh - 1.0)
+            v = min(max((sx + 0.5) / f - 0.5, 0.0), lw - 1.0)
+            u0, v0 = min(int(u), lh - 2) if lh > 1 else 0, min(int(v), lw - 2) if lw > 1 else 0
+            du, dv = u - u0, v - v0
+            u1, v1 = min(u0 + 1, lh - 1), min(v0 + 1, lw - 1)
+            for c in range(tex.shape[2]):
+                mean = (1 - du) * ((1 - dv) * low[u0, v0, c] + dv * low[u0, v1, c]) + du * (
+                    (1 - dv) * low[u1, v0, c] + dv * low[u1, v1, c]
+                )
+                tex[i, x, c] += image[sy, sx, c] - mean
+
+
 def _workers() -> int:
     usable = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
     return max(1, min(usable or 1, 8))
@@ -203,7 +255,9 @@ def _workers() -> int:
 class _Level:
     """One pyramid level: the image (float32, hole pixels being estimated), the hole, which patch
     centres may be copied (``valid``), the target patches (those touching the hole: ``ty``, ``tx``,
-    their index ``tid`` per pixel, -1 elsewhere) and the hole pixels (``hy``, ``hx``)."""
+    their index ``tid`` per pixel, -1 elsewhere), the hole pixels (``hy``, ``hx``), each pixel's
+    surface (``slab``) and the surface each target copies from (``tlab``; -1: any, where its own
+    surface has too few known patches to copy)."""
 
     img: np.ndarray
     hole: np.ndarray
@@ -213,18 +267,26 @@ class _Level:
     tid: np.ndarray
     hy: np.ndarray
     hx: np.ndarray
+    slab: np.ndarray
+    tlab: np.ndarray
 
     @classmethod
-    def make(cls, img: np.ndarray, hole: np.ndarray, r: int) -> _Level:
+    def make(cls, img: np.ndarray, hole: np.ndarray, r: int, surfaces: np.ndarray) -> _Level:
         h, w = hole.shape
         kernel = np.ones((2 * r + 1, 2 * r + 1), np.uint8)
-        valid = cv2.erode((~hole).astype(np.uint8), kernel, borderType=cv2.BORDER_CONSTANT, borderValue=0)
+        valid = cv2.erode((~hole).astype(np.uint8), kernel, borderType=cv2.BORDER_CONSTANT, borderValue=0) > 0
         touch = cv2.dilate(hole.astype(np.uint8), kernel) > 0
         ty, tx = np.nonzero(touch)
         tid = np.full((h, w), -1, np.int32)
         tid[ty, tx] = np.arange(ty.size, dtype=np.int32)
         hy, hx = np.nonzero(hole)
-        return cls(img, hole, valid.astype(np.bool_), ty.astype(np.int32), tx.astype(np.int32), tid, hy, hx)
+        slab = np.ascontiguousarray(cv2.resize(surfaces, (w, h), interpolation=cv2.INTER_NEAREST))
+        tlab = slab[ty, tx]
+        sources = np.bincount(slab[valid], minlength=int(slab.max()) + 1)
+        targets = np.bincount(tlab, minlength=sources.size)
+        thin = sources < np.maximum(_MIN_SURFACE_SOURCES * targets, (2 * r + 1) ** 2)
+        tlab = np.where(thin[tlab] | (sources.size == 1), -1, tlab).astype(np.int32)
+        return cls(img, hole, valid, ty.astype(np.int32), tx.astype(np.int32), tid, hy, hx, slab, tlab)
 
 
 def _downsample(img: np.ndarray, hole: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -248,7 +310,10 @@ def complete(image: np.ndarray, hole: np.ndarray, settings: ExemplarSettings | N
     """``image`` (HxWx3 uint8) with ``hole`` (HxW bool) painted from patches of the rest of the
     image, which is returned unchanged. ``settings.patch_radius`` shrinks (to 1) where no whole
     patch of that size is known; a hole at most 2 px deep, or one leaving no 3x3 patch known, is
-    diffused (Telea)."""
+    diffused (Telea).
+
+    Memory is bounded by the searched levels (at most ``_SEARCH_LONG_SIDE`` px long): the levels
+    above them are never held whole; the full-resolution result is assembled in row strips."""
     s = settings or ExemplarSettings()
     r = s.patch_radius
     hole = hole.astype(bool)
@@ -262,32 +327,44 @@ def complete(image: np.ndarray, hole: np.ndarray, settings: ExemplarSettings | N
     while r > 1 and not _has_patch(hole, 2 * r + 1):
         r -= 1
     side = 2 * r + 1
-    depth = float(distance_to(~hole).max())
-    if depth <= _DIFFUSE_DEPTH_PX or not _has_patch(hole, side):
+    if not _deeper_than(hole, _DIFFUSE_DEPTH_PX) or not _has_patch(hole, side):
         diffused = cv2.inpaint(image, hole.astype(np.uint8), 5.0, cv2.INPAINT_TELEA)
         np.copyto(out, diffused, where=hole[..., None])
         return out
 
-    # Pyramid: halve until the hole is about a patch deep, keeping known patches to copy.
-    imgs, holes = [image.astype(np.float32) / 255.0], [hole]
+    # Levels longer than _SEARCH_LONG_SIDE are not searched: their matches are the searched level's
+    # scaled up (at 4K a search would cost seconds and a copied patch there is as sharp), and only
+    # their holes are built; ``top`` is the finest searched level.
+    holes = [hole]
+    while (
+        max(holes[-1].shape) > _SEARCH_LONG_SIDE
+        and min(hole.shape) >> len(holes) >= _MIN_SIDE_PATCHES * side
+        and _has_patch(small := _downsample_hole(holes[-1]), side)
+    ):
+        holes.append(small)
+    top = len(holes) - 1
+    # The hole's depth in top-level pixels; a coarser level's is this halved per level.
+    depth = float(distance_to(~holes[top]).max())
+    imgs = [_downsample_strips(image, hole, top)]
+    holes = holes[top:]
+    # Coarser levels: halve until the hole is about a patch deep, keeping known patches to copy.
     while (
         depth / 2 ** (len(imgs) - 1) > _COARSE_DEPTH_PATCHES * side
-        or max(hole.shape) >> (len(imgs) - 1) > _COARSE_LONG_SIDE
-    ) and min(hole.shape) >> len(imgs) >= _MIN_SIDE_PATCHES * side:
+        or max(hole.shape) >> (top + len(imgs) - 1) > _COARSE_LONG_SIDE
+    ) and min(hole.shape) >> (top + len(imgs)) >= _MIN_SIDE_PATCHES * side:
         small, small_hole = _downsample(imgs[-1], holes[-1])
         if not _has_patch(small_hole, side):
             break
         imgs.append(small)
         holes.append(small_hole)
 
-    # Levels longer than _SEARCH_LONG_SIDE are not searched: their matches are the coarser level's
-    # doubled (at 4K a search would cost seconds and a copied patch there is as sharp).
-    top = next(i for i, h_ in enumerate(holes) if max(h_.shape) <= _SEARCH_LONG_SIDE or i == len(holes) - 1)
-
     # Texture features (Newson et al. 2017): mean absolute x and y derivatives over a window as wide
     # as a coarsest-level pixel, computed at the finest searched level and carried down the pyramid,
     # so that coarse matching, where the image itself is smooth, still tells textured from flat.
-    imgs[top:] = _with_features(imgs[top], holes[top:])
+    # Each hole pixel is copied from its own surface (see surfaces.py), and its structure diffused
+    # from that surface's ring only.
+    surfaces = segment(imgs[0], holes[0], side)
+    imgs = _with_features(imgs[0], holes)
 
     # Coarsest level: diffusion for the structure.
     for c in range(0, imgs[-1].shape[2], 3):
@@ -306,11 +383,9 @@ def complete(image: np.ndarray, hole: np.ndarray, settings: ExemplarSettings | N
         prev: _Level | None = None
         n_levels = len(imgs)
         for li in range(n_levels - 1, -1, -1):
-            lev = _Level.make(np.ascontiguousarray(imgs[li]), holes[li], r)
-            nnf = _init_nnf(lev, prev, nnf, s.seed + li)
+            lev = _Level.make(np.ascontiguousarray(imgs[li]), holes[li], r, surfaces)
+            nnf = _init_nnf(lev, prev, nnf, s.seed + top + li)
             prev = lev
-            if li < top:
-                continue
             # Small levels in this thread: handing them to the pool costs more than they do.
             pool = workers if lev.ty.size >= _PARALLEL_MIN_TARGETS else None
             if li < n_levels - 1:
@@ -324,33 +399,112 @@ def complete(image: np.ndarray, hole: np.ndarray, settings: ExemplarSettings | N
             for it in range(iters):
                 for sweep, step in enumerate((1, -1)):
                     bands = _bands(lev.ty, (2 * it + sweep) % 2)
-                    seed = int(_seed(s.seed, li, it, sweep))
+                    seed = int(_seed(s.seed, top + li, it, sweep))
                     _search_parallel(pool, lev, nnf, dist, bands, step, radius, seed, r)
                 _vote_parallel(pool, lev, nnf, _weights(dist, r), r)
                 _distances_parallel(pool, lev, nnf, dist, r)
-        # The finest level's pixels straight from their own patch's match (Newson et al.): a mean
-        # over the overlapping patches would blur what does not line up.
-        _vote_parallel(workers, prev, nnf, np.ones(prev.ty.size, np.float32), 0)
     finally:
         workers.shutdown()
-    texture = prev.img[..., :3] * 255.0
+    structure = low = None
     if s.structure_sigma > 0:
-        # Large-scale structure from diffusion (Telea), texture from the exemplars: a misplaced
-        # exemplar structure costs twice in error, a diffused one once. Diffused at the finest
-        # searched level: at 4K a full-resolution Telea alone would cost more than the search.
-        diffused = image
-        if top > 0:
-            diffused = np.clip(np.rint(imgs[top][..., :3] * 255.0), 0, 255).astype(np.uint8)
-        diffused = cv2.inpaint(diffused, holes[top].astype(np.uint8), 5.0 / 2**top, cv2.INPAINT_TELEA)
-        if top > 0:
-            diffused = cv2.resize(diffused, hole.shape[::-1], interpolation=cv2.INTER_LINEAR)
-        diffused = diffused.astype(np.float32)
-        texture += cv2.GaussianBlur(diffused, (0, 0), s.structure_sigma) - cv2.GaussianBlur(
-            texture, (0, 0), s.structure_sigma
-        )
-    filled = np.clip(np.rint(texture), 0, 255).astype(np.uint8)
-    np.copyto(out, filled, where=hole[..., None])
+        # Large-scale structure from diffusion, texture from the exemplars: a misplaced exemplar
+        # structure costs twice in error, a diffused one once. Each surface is diffused from its own
+        # known pixels (a membrane with a free edge where surfaces meet), so the wall's colour does
+        # not bleed onto the ground, at the finest searched level (at 4K a full-resolution
+        # diffusion alone would cost more than the search). What is copied is each source pixel's
+        # detail, its difference from the mean of the known pixels of its surface around it: the
+        # mean of the pasted mosaic would put a light halo round a dark copy, and one taken across
+        # surfaces would blur the line where they meet.
+        colour = prev.img[..., :3] * 255.0
+        known = ~holes[0]
+        sigma = s.structure_sigma / 2**top
+        structure, low = colour.copy(), colour.copy()
+        for lab in range(int(surfaces.max()) + 1):
+            on = surfaces == lab
+            if not (on & known).any():
+                continue
+            diffused = membrane_fill(colour, known & on, on)
+            structure[on] = _local_mean(diffused, on, sigma)[on]
+            low[on] = _local_mean(colour, known & on, sigma)[on]
+    _assemble(out, image, hole, prev, nnf, top, structure, low)
     return out
+
+
+#: Rows per strip of the full-resolution passes (see :func:`_assemble`).
+_STRIP_ROWS = 256
+#: Stands for "no mean to subtract" in :func:`_copy_matches` (numba wants an array).
+_NO_LOW = np.zeros((1, 1, 3), np.float32)
+
+
+def _deeper_than(hole: np.ndarray, px: float) -> bool:
+    """Whether some hole pixel is more than ``px`` from every known pixel (exact Euclidean, without
+    a full-resolution distance map)."""
+    n = int(px)
+    yy, xx = np.mgrid[-n : n + 1, -n : n + 1]
+    disc = (yy * yy + xx * xx <= px * px).astype(np.uint8)
+    return bool(cv2.erode(hole.astype(np.uint8), disc, borderType=cv2.BORDER_CONSTANT, borderValue=1).any())
+
+
+def _downsample_hole(hole: np.ndarray) -> np.ndarray:
+    """The hole of :func:`_downsample`: any pixel of the 2x2 block unknown."""
+    if hole.shape[0] % 2 or hole.shape[1] % 2:
+        hole = np.pad(hole, ((0, hole.shape[0] % 2), (0, hole.shape[1] % 2)), mode="edge")
+    return hole[0::2, 0::2] | hole[1::2, 0::2] | hole[0::2, 1::2] | hole[1::2, 1::2]
+
+
+def _downsample_strips(image: np.ndarray, hole: np.ndarray, times: int) -> np.ndarray:
+    """``image`` (uint8) as float32 in [0, 1], halved ``times`` times by :func:`_downsample`, in row
+    strips a multiple of ``2**times`` high (the same values as whole, without a full-size float copy)."""
+    f = 1 << times
+    rows = f * max(1, _STRIP_ROWS // f)
+    parts = []
+    for a in range(0, image.shape[0], rows):
+        part, part_hole = image[a : a + rows].astype(np.float32) / 255.0, hole[a : a + rows]
+        for _ in range(times):
+            part, part_hole = _downsample(part, part_hole)
+        parts.append(part)
+    return np.ascontiguousarray(np.vstack(parts))
+
+
+def _assemble(
+    out: np.ndarray,
+    image: np.ndarray,
+    hole: np.ndarray,
+    lev: _Level,
+    nnf: np.ndarray,
+    top: int,
+    structure: np.ndarray | None,
+    low: np.ndarray | None,
+) -> None:
+    """Writes ``out``'s hole pixels: each the known pixel its searched-level patch's match points at
+    (scaled up ``2**top``; not averaged over overlapping patches, which would blur what does not line
+    up, Newson et al.); with a ``structure`` (0-255, level ``top``), that scaled up plus the copied
+    pixel's difference from ``low`` (level ``top``) there. In row strips: at 58 MP whole-image
+    float copies cost gigabytes."""
+    h, w = hole.shape
+    f = 1 << top
+    for a in range(0, h, _STRIP_ROWS):
+        b = min(a + _STRIP_ROWS, h)
+        if not hole[a:b].any():
+            continue
+        if structure is None:
+            tex = np.zeros((b - a, w, 3), np.float32)
+            _copy_matches(image, hole, lev.tid, nnf, top, a, tex, _NO_LOW, False)
+        else:
+            # Scaled up over these rows only, one coarse row either side so that the
+            # interpolation is a whole-image resize's.
+            c0, c1 = max(a // f - 1, 0), min(-(-b // f) + 1, structure.shape[0])
+            tex = cv2.resize(structure[c0:c1], None, fx=f, fy=f, interpolation=cv2.INTER_LINEAR)
+            tex = np.ascontiguousarray(tex[a - c0 * f : b - c0 * f, :w])
+            _copy_matches(image, hole, lev.tid, nnf, top, a, tex, low, True)
+        part = hole[a:b]
+        out[a:b][part] = np.clip(np.rint(tex[part]), 0, 255).astype(np.uint8)
+
+
+def _local_mean(values: np.ndarray, weight: np.ndarray, sigma: float) -> np.ndarray:
+    """Gaussian mean (scale ``sigma``) of ``values`` over the pixels where ``weight`` is True."""
+    w = cv2.GaussianBlur(weight.astype(np.float32), (0, 0), sigma)
+    return cv2.GaussianBlur(values * weight[..., None], (0, 0), sigma) / np.maximum(w, 1e-6)[..., None]
 
 
 def _has_patch(hole: np.ndarray, side: int) -> bool:
@@ -398,11 +552,14 @@ def _weights(dist: np.ndarray, r: int) -> np.ndarray:
 
 def _init_nnf(lev: _Level, prev: _Level | None, prev_nnf: np.ndarray | None, seed: int) -> np.ndarray:
     """Matches for this level's targets: the coarser level's doubled (where that is a valid source
-    here), else a random valid source."""
-    vy, vx = np.nonzero(lev.valid)
+    of the target's surface here), else a random valid source of its surface."""
     rng = np.random.default_rng(seed)
-    pick = rng.integers(0, vy.size, lev.ty.size)
-    nnf = np.stack([vy[pick], vx[pick]], axis=1).astype(np.int64)
+    nnf = np.empty((lev.ty.size, 2), np.int64)
+    for lab in np.unique(lev.tlab):
+        vy, vx = np.nonzero(lev.valid & (lev.slab == lab)) if lab >= 0 else np.nonzero(lev.valid)
+        mine = np.flatnonzero(lev.tlab == lab)
+        pick = rng.integers(0, vy.size, mine.size)
+        nnf[mine, 0], nnf[mine, 1] = vy[pick], vx[pick]
     if prev is not None and prev_nnf is not None:
         cy = np.minimum(lev.ty // 2, prev.tid.shape[0] - 1)
         cx = np.minimum(lev.tx // 2, prev.tid.shape[1] - 1)
@@ -413,6 +570,8 @@ def _init_nnf(lev: _Level, prev: _Level | None, prev_nnf: np.ndarray | None, see
         h, w = lev.hole.shape
         ok = (sy < h) & (sx < w)
         ok[ok] = lev.valid[sy[ok], sx[ok]]
+        tl = lev.tlab[has]
+        ok[ok] = (tl[ok] < 0) | (lev.slab[sy[ok], sx[ok]] == tl[ok])
         idx = np.flatnonzero(has)[ok]
         nnf[idx, 0], nnf[idx, 1] = sy[ok], sx[ok]
     return np.ascontiguousarray(nnf)
@@ -431,7 +590,22 @@ def _search_parallel(pool, lev, nnf, dist, bands, step, radius, seed, r) -> None
     parts = [bands[i :: 2 * _workers()] for i in range(2 * _workers())]
     _map(
         pool,
-        lambda b: _search(lev.img, lev.valid, lev.tid, lev.ty, lev.tx, nnf, dist, b, step, radius, seed, r),
+        lambda b: _search(
+            lev.img,
+            lev.valid,
+            lev.slab,
+            lev.tlab,
+            lev.tid,
+            lev.ty,
+            lev.tx,
+            nnf,
+            dist,
+            b,
+            step,
+            radius,
+            seed,
+            r,
+        ),
         [p for p in parts if len(p)],
     )
 
