@@ -194,6 +194,25 @@ SECTIONS = [
         "summary.md",
     ),
     Section(
+        "real_panel",
+        "Real removals judged by eye (`benchmarks/quality/real_panel.py`)",
+        "The 15 cases of `benchmarks/panel/cases.json` (people and cars that move, static objects every "
+        "reference shows, objects on cobbles, brick and grass, signs), brushed generously, filled by geofill "
+        "(defaults, every reference), Telea and the homography warp of the first reference; the sheets are "
+        "`docs/img/panel/<case>.jpg`. Scores by eye from `benchmarks/panel/scores.json`: 0 = the object or "
+        "a passer-by comes back, 1 = gone but a result nobody would keep, 2 = fine at a glance, 3 = nobody "
+        "would notice the edit. In brackets the run's proxies (`back`: share of the object's distinguishable "
+        "pixels reproduced in place; `echo`: the object's appearance found anywhere in the hole; `tint`: its "
+        "colours back in the hole at any size; see the script's docstring); the last column says where "
+        "geofill's hole pixels came from. Each run: `real_panel.py --record benchmarks/panel/run_NAME.json` "
+        "(10 min here).",
+        [
+            *[PY, "benchmarks/quality/real_panel.py", "--table", "benchmarks/panel/scores.json"],
+            *["--table-md", "{out}/scores.md"],
+        ],
+        "scores.md",
+    ),
+    Section(
         "shared_focal",
         "One focal for all references (`benchmarks/studies/shared_focal.py`)",
         "The multi-reference sets with a true K: the target focal's error per pair (each reference alone) "
