@@ -185,7 +185,7 @@ def _capsule_distance(xy: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarra
 class Figure:
     """A person's silhouette standing upright in plane coordinates: ``top`` (x, y) is the crown
     of the head, ``height`` the plane units to the soles; ``stride`` in [-1, 1] is the walking
-    phase (how far the legs and arms swing apart; its sign, which foot is ahead); ``build``
+    phase (how far apart the legs are; its sign, which way the arms swing); ``build``
     scales the widths. Head, torso, arms and legs are discs and capsules of fixed proportions,
     so :meth:`inside` is exact; :func:`.cutouts.draw` draws it like a blob."""
 
@@ -206,9 +206,9 @@ class Figure:
             (at(0, 0.13), at(0, 0.16), 0.035 * H * b),  # neck
             (at(0, 0.24), at(0, 0.46), 0.105 * H * b),  # torso
             (at(-0.1 * b, 0.2), at(-0.13 * b - 0.08 * s, 0.5), 0.032 * H * b),  # arms
-            (at(0.1 * b, 0.2), at(0.13 * b + 0.08 * s, 0.5), 0.032 * H * b),
-            (at(-0.05 * b, 0.5), at(-0.05 * b + 0.14 * s, 0.965), 0.045 * H * b),  # legs
-            (at(0.05 * b, 0.5), at(0.05 * b - 0.14 * s, 0.965), 0.045 * H * b),
+            (at(0.1 * b, 0.2), at(0.13 * b - 0.08 * s, 0.5), 0.032 * H * b),
+            (at(-0.05 * b, 0.5), at(-0.05 * b - 0.14 * abs(s), 0.965), 0.045 * H * b),  # legs
+            (at(0.05 * b, 0.5), at(0.05 * b + 0.14 * abs(s), 0.965), 0.045 * H * b),
         ]
 
     def inside(self, xy: np.ndarray) -> np.ndarray:
