@@ -261,6 +261,12 @@ GHOST_MAX_PATCHES = 60_000
 #: the truth's, and a *ghost* where it is also nearer to some object patch than
 #: :data:`LEAK_RATIO` times its distance to the truth's.
 GHOST_MIN_CHANGE = 12.0
+#: Only output patches with structure count (RMS about the patch's mean per channel, 0-255): a
+#: smooth smear of the surroundings comes within a few levels of the smooth parts of many objects
+#: (a plain face, a photo's blurred background) and was flagged as often as real copies; a copied
+#: fragment keeps its edges and texture. A one-colour object's copy is thus counted along its
+#: outline and shading edges, not across its flat inside.
+GHOST_MIN_TEXTURE = 6.0
 #: ... and nearer to that object patch than this (RMS, 0-255): a copy keeps the object's colours
 #: (resampled, colour-corrected), a smear of the surroundings only comes near them.
 GHOST_MAX_DISTANCE = 8.0
@@ -318,15 +324,16 @@ def ghost(
     at p, ``d_obj`` = RMS distance of the output's patch to its nearest library patch (searched
     by direction in the library's first principal components, the best few candidates compared
     exactly, each at its best brightness gain within :data:`GHOST_GAIN`).
-    p is a *ghost* when ``d_true > GHOST_MIN_CHANGE`` and ``d_obj < LEAK_RATIO * d_true``: the
-    output differs from the truth there and looks at least twice as much like some piece of an
-    object as like the background. The truth scores 0; a copy of the object anywhere in the hole
-    scores its share of the hole.
+    p is a *ghost* when ``d_true > GHOST_MIN_CHANGE``, the output's patch has structure (RMS about
+    its mean >= :data:`GHOST_MIN_TEXTURE`), ``d_obj < GHOST_MAX_DISTANCE`` and ``d_obj <
+    LEAK_RATIO * d_true``: the output differs from the truth there and looks at least twice as
+    much like some piece of an object as like the background. The truth scores 0; a textured copy
+    of the object anywhere in the hole scores its share of the hole.
     """
     _check(output, truth, hole)
     h, w = hole.shape
     centres, small_shape, d_true, d_obj = ghost_distances(output, truth, hole, appearances)
-    is_ghost = (d_true > GHOST_MIN_CHANGE) & (d_obj < LEAK_RATIO * d_true) & (d_obj < GHOST_MAX_DISTANCE)
+    is_ghost = (d_obj < LEAK_RATIO * d_true) & (d_obj < GHOST_MAX_DISTANCE)
     small = np.zeros(small_shape, np.uint8)
     small[centres[is_ghost, 0], centres[is_ghost, 1]] = 1
     full = cv2.resize(small, (w, h), interpolation=cv2.INTER_NEAREST).astype(bool) & hole
@@ -341,8 +348,8 @@ def ghost_distances(
     appearances: Sequence[tuple[np.ndarray, np.ndarray]],
 ) -> tuple[np.ndarray, tuple[int, int], np.ndarray, np.ndarray]:
     """:func:`ghost`'s measurements: the hole pixels at the working scale ((N, 2) (y, x)), that
-    scale's (h, w), and per pixel ``d_true`` and ``d_obj`` (inf where unchanged or no object
-    shows anywhere)."""
+    scale's (h, w), and per pixel ``d_true`` and ``d_obj`` (inf where the output is within
+    :data:`GHOST_MIN_CHANGE` of the truth, flat, or no object shows anywhere)."""
     from scipy.spatial import cKDTree
 
     h, w = hole.shape
@@ -360,7 +367,9 @@ def ghost_distances(
                 library.append(_patches(_shrunk(view, f), np.argwhere(on)))
     queries = _patches(out, centres)
     d_true = np.sqrt(np.mean((queries - _patches(tru, centres)) ** 2, axis=1))
-    changed = d_true > GHOST_MIN_CHANGE
+    per_channel = queries.reshape(len(queries), 3, -1)
+    texture = np.sqrt(np.mean((per_channel - per_channel.mean(axis=2, keepdims=True)) ** 2, axis=(1, 2)))
+    changed = (d_true > GHOST_MIN_CHANGE) & (texture >= GHOST_MIN_TEXTURE)
     if not library or not changed.any():
         return centres, small_hole.shape, d_true, d_obj
     lib = np.concatenate(library)
