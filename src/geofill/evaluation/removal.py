@@ -58,6 +58,7 @@ Every random choice is seeded by (protocol, pair id, seed) through SHA-256, as t
 from __future__ import annotations
 
 import hashlib
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -331,6 +332,57 @@ def _posed_scene(pair: Pair, protocol: str) -> tuple[PairGeometry, ScenePoints |
     return g, points
 
 
+def _best_placement(propose: Callable[[], Any], what: str) -> Any:
+    """The placement of best ``score`` among up to :data:`_TRIES` of ``propose`` (None: none
+    possible), stopping at the first one every reference sees :data:`MIN_VISIBLE` of;
+    :class:`ProtocolSkip` naming ``what`` when none was possible."""
+    best = None
+    for _ in range(_TRIES):
+        cand = propose()
+        if cand is not None and (best is None or cand.score > best.score):
+            best = cand
+        if best is not None and best.score >= MIN_VISIBLE:
+            return best
+    if best is None:
+        raise ProtocolSkip(f"no placement of {what}")
+    return best
+
+
+def _object_case(
+    protocol: str,
+    pair: Pair,
+    g: PairGeometry,
+    points: ScenePoints | None,
+    drawn: tuple[np.ndarray, np.ndarray, np.ndarray],
+    sources: list[np.ndarray],
+    alphas: list[np.ndarray],
+    refs: list[dict[str, Any]],
+    info: dict[str, Any],
+    placement: StaticPlacement | None = None,
+) -> RemovalCase:
+    """The case of an object drawn into the target (``drawn``: the target showing it, its alpha,
+    the hole) and into the references (``sources`` with ``alphas``, described by ``refs``): the
+    references' objects mapped back (:func:`_mapped_objects`), ``info`` completed with the depth's
+    origin, areas and ``revealed``, the appearances for :func:`.metrics.ghost`."""
+    shown, alpha, hole = drawn
+    extra, hole_revealed = _mapped_objects(pair, g, hole, points, sources, alphas, refs)
+    h, w = hole.shape
+    info = {
+        "depth_from": "exact scene depth" if points is None else "triangulated SIFT matches, GT pose",
+        **info,
+        "object_area": round(float(alpha.sum()) / (h * w), 4),
+        "hole_area": round(float(hole.mean()), 4),
+        "hole_revealed": hole_revealed,
+        "references": refs,
+    }
+    looks = [(shown, alpha >= 0.5), *((src, a >= 0.5) for src, a in zip(sources, alphas, strict=True))]
+    shown_pair = replace(pair, target=shown, sources=sources)
+    return RemovalCase(
+        protocol, shown_pair, pair.target, hole, [(shown, hole)], extra, info, placement=placement,
+        appearances=looks,
+    )  # fmt: skip
+
+
 def static_case(pair: Pair, seed: int = 0, mask: str = REMOVAL_MASKS[0]) -> RemovalCase:
     """The ``static`` protocol on ``pair`` (see the module docstring) with the hole ``mask``;
     :class:`ProtocolSkip` when the pair has no K and pose for every reference or no usable
@@ -338,17 +390,8 @@ def static_case(pair: Pair, seed: int = 0, mask: str = REMOVAL_MASKS[0]) -> Remo
     _check_mask(mask)
     g, points = _posed_scene(pair, "static")
     truth = pair.target
-    h, w = truth.shape[:2]
     rng = np.random.default_rng(case_seed("static", pair.id, seed))
-    best: StaticPlacement | None = None
-    for _ in range(_TRIES):
-        cand = _propose(rng, pair, g, points)
-        if cand is not None and (best is None or cand.score > best.score):
-            best = cand
-        if best is not None and best.score >= MIN_VISIBLE:
-            break
-    if best is None:
-        raise ProtocolSkip("no placement of the object with scene depth around it")
+    best = _best_placement(lambda: _propose(rng, pair, g, points), "the object with scene depth around it")
     z_obj = best.z_object
     cutout = make_cutout(rng, best.blob, grey=is_grey(truth))
     shown, alpha = draw(truth, cutout)
@@ -379,25 +422,15 @@ def static_case(pair: Pair, seed: int = 0, mask: str = REMOVAL_MASKS[0]) -> Remo
                 ),
             }
         )
-    extra, hole_revealed = _mapped_objects(pair, g, hole, points, sources, alphas, refs)
     info = {
-        "depth_from": "exact scene depth" if points is None else "triangulated SIFT matches, GT pose",
         "n_points_near": best.n_points,
         "z_near": round(best.z_near, 4),
         "depth_fraction": round(best.fraction, 3),
         "z_object": round(z_obj, 4),
-        "object_area": round(float(alpha.sum()) / (h * w), 4),
-        "hole_area": round(float(hole.mean()), 4),
         "hole_mask": mask,
         **hole_info,
-        "hole_revealed": hole_revealed,
-        "references": refs,
     }
-    shown_pair = replace(pair, target=shown, sources=sources)
-    looks = [(shown, alpha >= 0.5), *((src, a >= 0.5) for src, a in zip(sources, alphas, strict=True))]
-    return RemovalCase(
-        "static", shown_pair, truth, hole, [(shown, hole)], extra, info, placement=best, appearances=looks
-    )
+    return _object_case("static", pair, g, points, (shown, alpha, hole), sources, alphas, refs, info, best)
 
 
 def _mapped_objects(
@@ -682,15 +715,7 @@ def solid_case(pair: Pair, seed: int = 0, plain: bool = False, mask: str = REMOV
     truth = pair.target
     h, w = truth.shape[:2]
     rng = np.random.default_rng(case_seed(protocol, pair.id, seed))
-    best: _BoxPlacement | None = None
-    for _ in range(_TRIES):
-        cand = _propose_box(rng, pair, g, points)
-        if cand is not None and (best is None or cand.score > best.score):
-            best = cand
-        if best is not None and best.score >= MIN_VISIBLE:
-            break
-    if best is None:
-        raise ProtocolSkip("no placement of the box in front of the scene")
+    best = _best_placement(lambda: _propose_box(rng, pair, g, points), "the box in front of the scene")
     box = replace(
         best.box, textures=_face_textures(rng, best.box, float(g.K_target[0, 0]), plain, is_grey(truth))
     )
@@ -709,26 +734,16 @@ def solid_case(pair: Pair, seed: int = 0, plain: bool = False, mask: str = REMOV
         sources.append(composite(source, colour, a))
         alphas.append(a)
         refs.append({"visible": round(best.visible[k], 3), "drawn_px": round(float(a.sum()))})
-    extra, hole_revealed = _mapped_objects(pair, g, hole, points, sources, alphas, refs)
     info = {
-        "depth_from": "exact scene depth" if points is None else "triangulated SIFT matches, GT pose",
         "n_points_near": best.n_points,
         "z_near": round(best.z_near, 4),
         "box_centre": [round(float(v), 6) for v in box.centre],
         "box_half_extents": [round(float(v), 6) for v in box.half],
         "box_axes": [[round(float(v), 6) for v in row] for row in box.axes],
-        "object_area": round(float(alpha.sum()) / (h * w), 4),
-        "hole_area": round(float(hole.mean()), 4),
         "hole_mask": mask,
         **hole_info,
-        "hole_revealed": hole_revealed,
-        "references": refs,
     }
-    looks = [(shown, alpha >= 0.5), *((src, a >= 0.5) for src, a in zip(sources, alphas, strict=True))]
-    return RemovalCase(
-        protocol, replace(pair, target=shown, sources=sources), truth, hole, [(shown, hole)], extra, info,
-        appearances=looks,
-    )  # fmt: skip
+    return _object_case(protocol, pair, g, points, (shown, alpha, hole), sources, alphas, refs, info)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -842,19 +857,12 @@ def walker_case(pair: Pair, seed: int = 0, crowd: bool = False, mask: str = REMO
     protocol = "walker_crowd" if crowd else "walker"
     g, points = _posed_scene(pair, protocol)
     truth = pair.target
-    h, w = truth.shape[:2]
     grey = is_grey(truth)
     rng = np.random.default_rng(case_seed(protocol, pair.id, seed))
     unit_area = _figure_area_per_height2()
-    best: _WalkerPlacement | None = None
-    for _ in range(_TRIES):
-        cand = _propose_walker(rng, pair, g, points, unit_area)
-        if cand is not None and (best is None or cand.score > best.score):
-            best = cand
-        if best is not None and best.score >= MIN_VISIBLE:
-            break
-    if best is None:
-        raise ProtocolSkip("no placement of the walker with scene depth around it")
+    best = _best_placement(
+        lambda: _propose_walker(rng, pair, g, points, unit_area), "the walker with scene depth around it"
+    )
     z_obj = best.fraction * best.z_near
     cutout = _figure_cutout(rng, best.figure, grey)
     shown, alpha = draw(truth, cutout)
@@ -884,25 +892,15 @@ def walker_case(pair: Pair, seed: int = 0, crowd: bool = False, mask: str = REMO
         sources.append(drawn)
         alphas.append(a)
         refs.append(ref)
-    extra, hole_revealed = _mapped_objects(pair, g, hole, points, sources, alphas, refs)
     info = {
-        "depth_from": "exact scene depth" if points is None else "triangulated SIFT matches, GT pose",
         "n_points_near": best.n_points,
         "z_near": round(best.z_near, 4),
         "z_object": round(z_obj, 4),
         "walker_height_px": round(best.figure.height, 1),
-        "object_area": round(float(alpha.sum()) / (h * w), 4),
-        "hole_area": round(float(hole.mean()), 4),
         "hole_mask": mask,
         **hole_info,
-        "hole_revealed": hole_revealed,
-        "references": refs,
     }
-    looks = [(shown, alpha >= 0.5), *((src, a >= 0.5) for src, a in zip(sources, alphas, strict=True))]
-    return RemovalCase(
-        protocol, replace(pair, target=shown, sources=sources), truth, hole, [(shown, hole)], extra, info,
-        appearances=looks,
-    )  # fmt: skip
+    return _object_case(protocol, pair, g, points, (shown, alpha, hole), sources, alphas, refs, info)
 
 
 def make_case(
