@@ -71,10 +71,18 @@ def eval_scores(
 ) -> dict[str, dict[str, dict[str, float]]]:
     """``geofill eval --out out *args`` (its output discarded): per pair and method, the ``fields``
     of its results.csv that have a value."""
-    import csv
-
     cmd = [sys.executable, "-m", "geofill.cli", "eval", "--out", str(out), *args]
     subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
+    return read_scores(out, fields)
+
+
+def read_scores(
+    out: Path, fields: tuple[str, ...] = ("psnr_hole",)
+) -> dict[str, dict[str, dict[str, float]]]:
+    """Per pair and method, the ``fields`` that have a value in ``out``'s results.csv (a ``geofill
+    eval`` output folder)."""
+    import csv
+
     scores: dict[str, dict[str, dict[str, float]]] = {}
     with open(out / "results.csv", newline="") as f:
         for row in csv.DictReader(f):

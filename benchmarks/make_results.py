@@ -148,6 +148,19 @@ SECTIONS = [
         [PY, "benchmarks/quality/removal_seeds.py", "--variant", "perpair:registration.joint=off"],
     ),
     Section(
+        "removal_kinds",
+        "Object removal per kind of object, brushed holes (`benchmarks/quality/removal_kinds.py`)",
+        "Each removal protocol (a planar cutout, a textured box and a one-colour box placed in 3D, "
+        "strangers in the references, a walking figure alone and with passers-by) on the 3 DEV "
+        "multi-reference sets with GT poses and 2 synthetic view sets, seed 0, holes brushed 15-45 px "
+        "beyond the object (the default `--removal-mask brushed`): hole PSNR, leak (the object back in "
+        "place), leak (all) (with each reference's objects mapped in) and ghost (an object or passer-by "
+        "reproduced anywhere in the hole) of Telea's smear, the homography baseline and geofill with "
+        "all references, against the targets (leak and ghost at most Telea's + 0.02, hole PSNR at least "
+        "Telea's + 1.5 dB).",
+        [PY, "benchmarks/quality/removal_kinds.py", "--seeds", "0", "--jobs", "2"],
+    ),
+    Section(
         "painter",
         "Single-image painters on whole holes (`benchmarks/quality/painter.py`)",
         "The first 8 DEV pairs (wide ones excluded) at a 720-px long side, the evaluation's stroke hole "

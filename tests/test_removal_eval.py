@@ -38,7 +38,7 @@ def synthetic_pair():
 
 @pytest.fixture(scope="module")
 def static(synthetic_pair):
-    return static_case(synthetic_pair, seed=0)
+    return static_case(synthetic_pair, seed=0, mask="tight")
 
 
 def _read_csv(path: Path) -> list[dict[str, str]]:

@@ -12,7 +12,7 @@ from ..errors import GeoFillError
 from .masks import DEFAULT_AREA_RANGE, DEFAULT_STROKE_WIDTH_720P
 from .methods import DEFAULT_METHODS, METHODS, register_geofill_methods, resolve_methods
 from .pairs import load_pairs
-from .removal import PROTOCOLS
+from .removal import PROTOCOLS, REMOVAL_MASKS
 from .runner import REFERENCE_MODES, run_eval, sweep
 
 
@@ -97,11 +97,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default="restoration",
         help="restoration (default): a brush-stroke hole cut into the background and blanked; "
         "static: a planar photo cutout placed in front of the scene and drawn into the target and every "
-        "reference with the GT-pose projection (sets with K and poses, synthetic:N), hole = its "
-        "silhouette; strangers: the brush-stroke hole shows a cutout and other cutouts cover 30-60 %% of "
-        "the hole's background in the references. The removal protocols give the methods the target "
-        "showing the object, score against the clean target and add the leak (how much of the "
-        "object the output reproduces)",
+        "reference with the GT-pose projection (sets with K and poses, synthetic:N); solid / "
+        "solid_plain: a box (photo faces / one colour, shaded) placed in 3D and ray-cast into every "
+        "view; walker / walker_crowd: a person-shaped cutout standing elsewhere in each reference "
+        "(crowd: and passers-by in the references); strangers: the brush-stroke hole shows a cutout "
+        "and other cutouts cover 30-60 %% of the hole's background in the references. The removal "
+        "protocols give the methods the target showing the object, score against the clean target "
+        "and add the leak (the object reproduced in place) and the ghost (an object reproduced "
+        "anywhere in the hole)",
+    )
+    parser.add_argument(
+        "--removal-mask",
+        choices=REMOVAL_MASKS,
+        default=REMOVAL_MASKS[0],
+        help="the removal protocols' hole: brushed (default): the object's silhouette closed and "
+        "dilated by a wobbly 15-45 px margin at a 1280-px long side, as people brush; tight: the "
+        "silhouette dilated by 4 px at 720p (strangers: the cutout fills the stroke hole)",
     )
     parser.add_argument(
         "--lpips-model",
@@ -112,6 +123,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``geofill eval`` with parsed ``args``; the exit code."""
+    if args.removal_mask != REMOVAL_MASKS[0] and args.protocol == "restoration":
+        print("geofill eval: --removal-mask needs a removal --protocol", file=sys.stderr)
+        return 2
     if args.sweep and args.protocol != "restoration":
         print("geofill eval: --sweep runs the restoration protocol only; drop --protocol", file=sys.stderr)
         return 2
@@ -150,6 +164,7 @@ def run(args: argparse.Namespace) -> int:
                 lpips_model=args.lpips_model,
                 references=args.references,
                 protocol=args.protocol,
+                removal_mask=args.removal_mask,
             )
             print(f"summary written to {args.out}/summary.md", file=sys.stderr)
     except GeoFillError as exc:

@@ -99,7 +99,10 @@ def _output_tiles(
             continue
         label = f"{row.method}: hole PSNR {fmt_number(row.psnr_hole, 2)} dB"
         if row.distinguishable_px is not None:
-            label = f"{row.method}: {fmt_number(row.psnr_hole, 2)} dB, leak {fmt_number(row.leak, 2)}"
+            label = (
+                f"{row.method}: {fmt_number(row.psnr_hole, 2)} dB, leak {fmt_number(row.leak, 2)}, "
+                f"ghost {fmt_number(row.ghost, 2)}"
+            )
         tiles.append(_tile(image, label, cell))
     return tiles
 
@@ -138,7 +141,7 @@ def removal_contact_sheet(
     shown = pair.target.copy()
     outline = case.hole & ~cv2.erode(case.hole.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
     shown[outline] = _HOLE_COLOUR
-    what = "object" if case.protocol == "static" else "strangers"
+    what = "strangers" if case.protocol == "strangers" else "object"
     tiles = [
         _tile(case.truth, f"{pair.id} (ground truth)", cell),
         _tile(shown, f"target given, hole {case.hole.mean():.1%}", cell),

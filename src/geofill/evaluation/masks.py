@@ -243,3 +243,79 @@ def brush_stroke_mask(
     if hole.all():
         raise ValueError(f"a {mean_width_px:.0f}-px brush covers the whole {width}x{height} image")
     return hole
+
+
+#: A removal hole brushed over an object: its margin beyond the object's (closed) silhouette, in
+#: px at a 1280-px long side (scaled with the long side), as people brush generously around what
+#: they remove (15-45 px); the margin wobbles between these bounds along the outline.
+BRUSH_MARGIN_1280 = (15.0, 45.0)
+#: The wobble's correlation length, as a fraction of the image's long side.
+_WOBBLE_LENGTH = 0.04
+
+
+def brush_margin_px(height: int, width: int) -> tuple[float, float]:
+    """:data:`BRUSH_MARGIN_1280` scaled to an ``height`` x ``width`` image."""
+    s = max(height, width) / 1280.0
+    return BRUSH_MARGIN_1280[0] * s, BRUSH_MARGIN_1280[1] * s
+
+
+def closed_silhouette(silhouette: np.ndarray, radius_px: float) -> np.ndarray:
+    """HxW bool: ``silhouette`` closed (morphological closing with a disc of ``radius_px``) and its
+    holes filled, as a brush passes over the gaps between legs and the notches of an outline."""
+    r = max(1, round(radius_px))
+    pad = r + 1
+    grown = np.pad(silhouette.astype(np.uint8), pad)
+    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+    closed = cv2.morphologyEx(grown, cv2.MORPH_CLOSE, disc)[pad:-pad, pad:-pad]
+    # Holes: background components not connected to the border (flood from a padded corner).
+    canvas = np.pad(closed, 1)
+    cv2.floodFill(canvas, None, (0, 0), 2)
+    return (canvas[1:-1, 1:-1] != 2) | silhouette
+
+
+def _margin_field(distance: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """HxW float32 local brush margin (px): a smooth random field (white noise blurred over
+    :data:`_WOBBLE_LENGTH` of the long side) stretched over the pixels within reach of the outline
+    (``0 < distance <= hi + 1``) to span :func:`brush_margin_px`."""
+    h, w = distance.shape
+    lo, hi = brush_margin_px(h, w)
+    sigma = _WOBBLE_LENGTH * max(h, w)
+    noise = cv2.GaussianBlur(rng.standard_normal((h, w)).astype(np.float32), (0, 0), sigma)
+    ring = (distance > 0) & (distance <= hi + 1)
+    span = noise[ring] if ring.any() else noise.ravel()
+    n_lo, n_hi = float(span.min()), float(span.max())
+    unit = (noise - n_lo) / max(n_hi - n_lo, 1e-12)
+    return (lo + (hi - lo) * np.clip(unit, 0.0, 1.0)).astype(np.float32)
+
+
+def _distance_to(region: np.ndarray) -> np.ndarray:
+    """HxW float32 Euclidean distance of each pixel to the nearest pixel of ``region`` (0 on it)."""
+    return cv2.distanceTransform((~region).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+
+
+def brushed_hole(silhouette: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """HxW bool: a hole brushed over the object whose HxW bool ``silhouette`` is given.
+
+    The silhouette closed (:func:`closed_silhouette` with the largest margin), then every pixel
+    whose distance to it is at most the local margin ``m(p)`` (:func:`_margin_field`), so the
+    outline wobbles and its distance to the silhouette stays within 15-45 px at 1280 px (within
+    a pixel). The margin shows background: in a removal case the truth there is what the target
+    already shows."""
+    h, w = silhouette.shape
+    closed = closed_silhouette(silhouette, brush_margin_px(h, w)[1])
+    distance = _distance_to(closed)
+    reach = (closed | (distance <= _margin_field(distance, rng))).astype(np.uint8)
+    # A far pixel within its own margin but cut off from the object (the field dips between) is
+    # no part of a brushed stroke: keep the components touching the silhouette, holes filled.
+    _, labels = cv2.connectedComponents(reach, connectivity=8)
+    keep = np.isin(labels, np.unique(labels[closed]))
+    return closed_silhouette(keep & (labels > 0), 1)
+
+
+def brushed_interior(hole: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """HxW bool: what an object brushed over by ``hole`` covers: the pixels of ``hole`` farther
+    than the local margin ``m(p)`` (:func:`_margin_field`) from its outside, so that the hole's
+    outline lies 15-45 px at 1280 px beyond the object (within a pixel), as with
+    :func:`brushed_hole`. Empty where the hole is nowhere that wide."""
+    distance = _distance_to(~hole)
+    return hole & (distance > _margin_field(distance, rng))

@@ -32,9 +32,18 @@ from .masks import (
     mask_seed,
 )
 from .methods import MULTI_REFERENCE, Method, MethodOutput, resolve_methods
-from .metrics import LpipsScorer, LpipsUnavailable, leak, load_lpips, psnr, ssim
+from .metrics import LpipsScorer, LpipsUnavailable, ghost, leak, load_lpips, psnr, ssim
 from .pairs import Pair, PairExif, group_value, pair_mask, stroke_width_px
-from .removal import PROTOCOL_TEXT, PROTOCOLS, REMOVAL_PROTOCOLS, ProtocolSkip, RemovalCase, make_case
+from .removal import (
+    MASK_TEXT,
+    PROTOCOL_TEXT,
+    PROTOCOLS,
+    REMOVAL_MASKS,
+    REMOVAL_PROTOCOLS,
+    ProtocolSkip,
+    RemovalCase,
+    make_case,
+)
 from .tables import (
     EvalRow,
     fmt_number,
@@ -143,6 +152,7 @@ def _evaluate_pair(
                 row.leak, row.leaked_px = found.fraction, found.leaked
                 row.distinguishable_px = found.distinguishable
                 row.leak_all = leak(image, truth, [*case.objects, *case.extra_objects], hole.mask).fraction
+                row.ghost = ghost(image, truth, hole.mask, case.appearances).fraction
             row.lpips_status = lpips.status
             if lpips.scorer is not None:
                 try:
@@ -183,6 +193,7 @@ class _Progress:
             tail = f"psnr_hole={row.psnr_hole:.2f} ssim_hole={row.ssim_hole:.3f} {row.time_s:.2f}s"
             if row.distinguishable_px is not None:
                 tail += f" leak={fmt_number(row.leak, 3)} (all {fmt_number(row.leak_all, 3)})"
+                tail += f" ghost={fmt_number(row.ghost, 3)}"
         else:
             tail = f"FAILED {row.error}"
         print(f"{head}: {tail}", file=sys.stderr, flush=True)
@@ -205,13 +216,14 @@ def run_eval(
     contact_sheets: bool = True,
     references: Sequence[str] = REFERENCE_MODES,
     protocol: str = "restoration",
+    removal_mask: str = REMOVAL_MASKS[0],
 ) -> list[EvalRow]:
     """Evaluate ``methods`` (registry names, a name -> method mapping, or None for all registered)
     on ``pairs`` and write the results to ``out_dir`` (see the module docstring).
 
     ``protocol``: ``restoration`` (a brush-stroke hole in the background, blanked) or one of the
-    object-removal protocols ``static`` / ``strangers`` (:mod:`.removal`; see
-    :func:`run_removal_eval`).
+    object-removal protocols (:data:`.removal.REMOVAL_PROTOCOLS`, with the hole ``removal_mask``;
+    see :func:`run_removal_eval`).
 
     Masks: seeded by (pair id, ``seed``); mean brush width ``stroke_width_720p`` px at a 720-px
     short side (default 150), scaled to each image; hole area in ``area_range``. ``by`` names a
@@ -233,6 +245,7 @@ def run_eval(
             lpips_model=lpips_model,
             contact_sheets=contact_sheets,
             references=references,
+            mask=removal_mask,
         )
     out = Path(out_dir)
     (out / "masks").mkdir(parents=True, exist_ok=True)
@@ -281,11 +294,14 @@ def run_removal_eval(
     lpips_model: str | Path | None = None,
     contact_sheets: bool = True,
     references: Sequence[str] = REFERENCE_MODES,
+    mask: str = REMOVAL_MASKS[0],
 ) -> list[EvalRow]:
-    """An object-removal protocol (``static`` or ``strangers``, :mod:`.removal`): each pair gets
+    """An object-removal protocol (:data:`.removal.REMOVAL_PROTOCOLS`, holes drawn as ``mask``
+    says: :data:`.removal.REMOVAL_MASKS`): each pair gets
     its case (objects drawn into the target and the references; pairs the protocol cannot use are
     skipped with the reason), every method fills the target *as it shows the object* (not blanked),
-    and is scored against the clean target, with the leak (:func:`.metrics.leak`).
+    and is scored against the clean target, with the leak (:func:`.metrics.leak`) and the ghost
+    (:func:`.metrics.ghost`).
 
     Writes what :func:`run_eval` writes, results.csv with the leak columns, and ``cases.json``
     (how each case was made: placement, depths, coverage, mappings)."""
@@ -297,7 +313,7 @@ def run_removal_eval(
     cases, skipped = [], {}
     for pair in pairs:
         try:
-            cases.append(make_case(protocol, pair, seed, stroke_width_720p, area_range))
+            cases.append(make_case(protocol, pair, seed, stroke_width_720p, area_range, mask))
         except ProtocolSkip as exc:
             skipped[pair.id] = str(exc)
             print(f"{pair.id}: skipped by the {protocol} protocol: {exc}", file=sys.stderr, flush=True)
@@ -328,6 +344,7 @@ def run_removal_eval(
     settings = {
         "protocol": protocol,
         "protocol_text": PROTOCOL_TEXT[protocol],
+        "removal_mask": f"{mask}: {MASK_TEXT[mask]}",
         "pairs": len(cases),
         "seed": seed,
         "lpips": lpips.description,

@@ -37,6 +37,7 @@ class EvalRow:
     leaked_px: int | None = None
     distinguishable_px: int | None = None
     leak_all: float | None = None
+    ghost: float | None = None  # removal protocols: see metrics.ghost
     time_s: float | None = None
     error: str = ""
     group: str = ""
@@ -82,7 +83,7 @@ def write_csv(path: Path, fields: Sequence[str], records: Sequence[Mapping[str, 
 
 
 #: Extra results.csv columns of the removal protocols.
-LEAK_FIELDS = ("leak", "leaked_px", "distinguishable_px", "leak_all")
+LEAK_FIELDS = ("leak", "leaked_px", "distinguishable_px", "leak_all", "ghost")
 
 
 def write_results_csv(path: Path, rows: Sequence[EvalRow], by: str | None, leak: bool = False) -> None:
@@ -163,8 +164,10 @@ def summary_markdown(
     if removal:
         head = [
             f"- protocol: {settings['protocol']}: {settings['protocol_text']}",
+            f"- hole: {settings['removal_mask']}",
             f"- sets: {settings['pairs']}, seed {settings['seed']}, mean hole ratio {mean_ratio}",
             f"- leak: {LEAK_TEXT}",
+            f"- ghost: {GHOST_TEXT}",
         ]
     else:
         lo, hi = settings["area_range"]
@@ -183,7 +186,7 @@ def summary_markdown(
         "## Scores (mean / median over pairs the method ran on)",
         "",
     ]
-    leaks = (("leak", "leak", 3), ("leak_all", "leak (all)", 3))
+    leaks = (("leak", "leak", 3), ("leak_all", "leak (all)", 3), ("ghost", "ghost", 3))
     metrics = (*_METRICS, ("lpips", "LPIPS", 4), *(leaks if removal else ()))
     header = ["method", "ok", "failed", *(label for _, label, _ in metrics), "median time (s)"]
     body = []
@@ -249,6 +252,15 @@ LEAK_TEXT = (
 )
 
 
+#: What the summary says the ghost is (metrics.ghost).
+GHOST_TEXT = (
+    "fraction of the hole pixels where the output's 7-px patch (at a 480-px long side) differs from "
+    "the truth's by more than 12 RMS and is nearer to some patch of an object or passer-by, as any "
+    "view shows it, at any place and at scales 0.7-1.4, than half its distance to the truth's: the "
+    "object reproduced anywhere in the hole, shifted or rescaled"
+)
+
+
 def per_set_markdown(
     rows: Sequence[EvalRow], methods: Sequence[str], revealed: Mapping[str, float]
 ) -> list[str]:
@@ -260,7 +272,7 @@ def per_set_markdown(
     for r in sorted(rows, key=lambda r: (r.pair, order.get(r.method, len(order)))):
         seen = fmt_number(revealed.get(r.pair), 3)
         if not r.ok:
-            body.append([r.pair, seen, r.method, "FAILED", "-", "-", "-"])
+            body.append([r.pair, seen, r.method, "FAILED", "-", "-", "-", "-"])
             continue
         body.append(
             [
@@ -271,9 +283,12 @@ def per_set_markdown(
                 fmt_number(r.leak, 3),
                 f"{r.leaked_px}/{r.distinguishable_px}",
                 fmt_number(r.leak_all, 3),
+                fmt_number(r.ghost, 3),
             ]
         )
-    header = ["set", "revealed", "method", "PSNR hole", "leak", "leaked / distinguishable px", "leak (all)"]
+    header = [
+        "set", "revealed", "method", "PSNR hole", "leak", "leaked / distinguishable px", "leak (all)", "ghost"
+    ]  # fmt: skip
     return ["", "## Per set", "", *_md_table(header, body)]
 
 
