@@ -282,3 +282,16 @@ def test_wall_and_floor_are_each_filled_from_themselves_and_their_meeting_line_c
     first_floor = np.array([60 + np.flatnonzero(~wallish[60:200, c])[0] for c in through])
     assert np.abs(first_floor - line[through]).max() <= 2.0, first_floor - line[through]
     np.testing.assert_array_equal(out[~hole], blank[~hole])
+
+
+def test_what_the_hole_shows_does_not_change_the_painted_pixels():
+    """The hole's own pixels (in a removal: the object) never reach the painter: a hole blanked and
+    the same hole showing a bright object give the same bytes (the surfaces' texture measure read
+    the ring's first pixel row through its 3x3 Laplacian, so a red object moved the surfaces)."""
+    img, _, _ = _wall_and_floor()
+    h, w = img.shape[:2]
+    hole = _disc(h, w, 130, 160, 50)
+    blank, shown = img.copy(), img.copy()
+    blank[hole] = 0
+    shown[hole] = (255, 0, 0)
+    np.testing.assert_array_equal(complete(blank, hole), complete(shown, hole))

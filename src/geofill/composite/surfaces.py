@@ -63,7 +63,10 @@ def segment(image: np.ndarray, hole: np.ndarray, patch_px: int) -> np.ndarray:
 def _appearance(image: np.ndarray, known: np.ndarray, sigma: float) -> np.ndarray:
     """Per pixel: CIELAB colour and texture energy, averaged over the known pixels within ``sigma``."""
     lab = cv2.cvtColor(image, cv2.COLOR_RGB2Lab)
-    energy = np.abs(cv2.Laplacian(lab[..., 0], cv2.CV_32F, ksize=3)) * _TEXTURE_WEIGHT
+    # The Laplacian of the ring's first row reads the hole: it sees the hole as black, whatever the
+    # hole shows (in a removal, the object), so the object cannot shape the surfaces.
+    lightness = np.where(known, lab[..., 0], 0.0).astype(np.float32)
+    energy = np.abs(cv2.Laplacian(lightness, cv2.CV_32F, ksize=3)) * _TEXTURE_WEIGHT
     w = known.astype(np.float32)
     # Blurred at a quarter of the scale on an image reduced as much (a blur this wide keeps nothing
     # the reduction loses), then scaled back: a full-size blur of 5 channels cost a second at 720p.
