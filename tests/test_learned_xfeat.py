@@ -172,7 +172,7 @@ def test_an_image_too_narrow_for_xfeat_skips_the_learned_rung_with_its_reason(sh
         "long side, under the 32 px it needs"
     )
     assert f"rung learned skipped: {said}" in m.notes
-    assert m.unrelated.endswith(f"(sift; learned skipped: {said}), 15 needed")
+    assert m.unrelated.endswith(f"(sift; learned skipped: {said}), {cfg.unrelated_max_verified} needed")
 
 
 def test_learned_on_without_the_extra_is_one_line_naming_it(monkeypatch) -> None:
