@@ -22,6 +22,9 @@ ROOT = Path(__file__).resolve().parents[1]
 #: The real pairs and the multi-reference sets, next to the repository.
 PAIRS = ROOT.parent / "shared" / "data" / "pairs"
 MULTIVIEW = ROOT.parent / "shared" / "data" / "multiview"
+#: DEV pair folders never read here: TUM RGB-D images are reserved for independent checks of this
+#: project, and one DEV pair (from slambook2's copy) is made of them.
+HELD_OUT = ("dev_tum_fr2_desk_rgbd",)
 #: ``geofill eval --protocol static``'s sets: the multi-reference sets with GT poses, then rendered ones.
 STATIC_PAIRS = [
     *(

@@ -574,6 +574,17 @@ def test_load_pairs_rejects_duplicates_and_empty_folders(tmp_path):
     assert np.array_equal(loaded.target, p.target) and loaded.meta == p.meta
 
 
+def test_excluded_pair_folders_are_left_out_unread(tmp_path):
+    kept, held = planar_pairs(2)
+    _write_pair_folder(tmp_path / "set" / kept.id, kept)
+    _write_pair_folder(tmp_path / "set" / held.id, held)
+    (tmp_path / "set" / held.id / "target.png").write_bytes(b"not an image")  # reading it would fail
+    (loaded,) = load_pairs([tmp_path / "set"], exclude=[held.id])
+    assert loaded.id == kept.id
+    with pytest.raises(InputError):
+        load_pairs([tmp_path / "set"])
+
+
 def test_synthetic_pairs_load():
     pairs = load_pairs(["synthetic:2"])
     assert [p.id for p in pairs] == ["synthetic_000", "synthetic_001"]

@@ -122,8 +122,9 @@ def test_real_fill_through_the_api(tmp_path, upload, pair):
         assert rows["reference 1"] == pytest.approx(snap["report"]["supplied_fraction"][0])
         assert "% from reference" in snap["summary"] and "% painted" in snap["summary"]
 
-        res = client.get(f"/api/v1/jobs/{job_id}/result")
+        res = client.get(f"/api/v1/jobs/{job_id}/result")  # a PNG target: PNG back
         assert res.status_code == 200 and res.headers["content-type"] == "image/png"
+        assert snap["result_file"] == "result.png"
         out = np.array(Image.open(io.BytesIO(res.content)))
         target = upload["target_array"]
         assert out.shape == target.shape
@@ -192,10 +193,23 @@ def test_result_keeps_the_targets_exif_and_progress_only_grows(tmp_path, upload,
         assert snap["state"] == "done", snap
         assert seen == sorted(seen) and len(set(seen)) >= 5, seen
         assert 0 < snap["wall_s"] <= wall
-        result = client.get(f"/api/v1/jobs/{job_id}/result").content
-    (tmp_path / "result.png").write_bytes(result)
+        res = client.get(f"/api/v1/jobs/{job_id}/result")
+        lossless = client.get(f"/api/v1/jobs/{job_id}/result", params={"format": "png"})
+        assert client.get(f"/api/v1/jobs/{job_id}/result", params={"format": "gif"}).status_code == 422
+    # A JPEG target comes back as a JPEG at the target's own tables; PNG on request, same pixels
+    # up to the JPEG's loss.
+    assert res.headers["content-type"] == "image/jpeg", res.headers
+    assert 'filename="geofill-result.jpg"' in res.headers["content-disposition"]
+    assert snap["result_file"] == "result.jpg"
+    assert lossless.headers["content-type"] == "image/png"
+    (tmp_path / "result.jpg").write_bytes(res.content)
     (tmp_path / "target.jpg").write_bytes(parts[0][1][1])
-    kept, given = read_image(tmp_path / "result.png").exif, read_image(tmp_path / "target.jpg").exif
+    with Image.open(tmp_path / "result.jpg") as got, Image.open(tmp_path / "target.jpg") as given_jpeg:
+        assert got.quantization == given_jpeg.quantization
+    png = np.array(Image.open(io.BytesIO(lossless.content)))
+    jpeg = np.array(Image.open(tmp_path / "result.jpg"))
+    assert np.abs(png.astype(int) - jpeg).mean() < 3
+    kept, given = read_image(tmp_path / "result.jpg").exif, read_image(tmp_path / "target.jpg").exif
     assert kept == given and kept.focal_mm == 4.28 and kept.body == "Apple iPhone 4S"
 
 

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root: benchmarks.common
-from benchmarks.common import MULTIVIEW, PAIRS, export_src
+from benchmarks.common import HELD_OUT, MULTIVIEW, PAIRS, export_src
 
 
 def write_inputs(folder: Path) -> None:
@@ -30,7 +30,9 @@ def write_inputs(folder: Path) -> None:
     from geofill.evaluation.pairs import load_pair, pair_mask
     from geofill.synthetic import blanked
 
-    for pair_dir in sorted(p for root in (PAIRS, MULTIVIEW) for p in root.iterdir() if p.is_dir()):
+    for pair_dir in sorted(
+        p for root in (PAIRS, MULTIVIEW) for p in root.iterdir() if p.is_dir() and p.name not in HELD_OUT
+    ):
         pair = load_pair(pair_dir)
         hole = pair_mask(pair, seed=0)
         sources = {f"source{k}": s for k, s in enumerate(pair.sources)}

@@ -24,7 +24,7 @@ from geofill.evaluation.pairs import load_pairs
 from geofill.evaluation.removal import REMOVAL_PROTOCOLS, ProtocolSkip, RemovalCase, make_case
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root: benchmarks.common
-from benchmarks.common import MULTIVIEW
+from benchmarks.common import HELD_OUT, MULTIVIEW
 
 
 def known_outputs(case: RemovalCase, rng: np.random.Generator) -> dict[str, np.ndarray]:
@@ -52,7 +52,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args(argv)
-    pairs = load_pairs(args.pairs or [MULTIVIEW, "synthetic:3"])
+    pairs = load_pairs(args.pairs or [MULTIVIEW, "synthetic:3"], exclude=HELD_OUT)
     rng = np.random.default_rng(0)
     for protocol in REMOVAL_PROTOCOLS:
         scores: dict[str, list[tuple[float, float]]] = {}

@@ -43,7 +43,7 @@ import cv2
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root: benchmarks.common
-from benchmarks.common import PAIRS
+from benchmarks.common import HELD_OUT, PAIRS
 
 LONG_SIDE = 720
 STROKE_PX = 100.0
@@ -82,7 +82,11 @@ def _painters() -> dict:
 
 def dev_pairs(n: int) -> list[Path]:
     """The first ``n`` DEV pairs by id, wide-baseline ones excluded."""
-    return sorted(d for d in PAIRS.iterdir() if d.is_dir() and not d.name.startswith("dev_wide_"))[:n]
+    return sorted(
+        d
+        for d in PAIRS.iterdir()
+        if d.is_dir() and not d.name.startswith("dev_wide_") and d.name not in HELD_OUT
+    )[:n]
 
 
 def case(folder: Path) -> tuple[np.ndarray, np.ndarray]:

@@ -22,7 +22,7 @@ from geofill.evaluation.pairs import load_pairs, pair_mask
 from geofill.pipeline import fill
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root: benchmarks.common
-from benchmarks.common import PAIRS
+from benchmarks.common import HELD_OUT, PAIRS
 
 STAGES = ("match", "pose", "triangulate", "depth", "render", "composite")
 
@@ -34,7 +34,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args(argv)
     cfg = FillConfig().updated(parse_overrides(args.set))
-    pairs = load_pairs([args.pairs])
+    pairs = load_pairs([args.pairs], exclude=HELD_OUT)
     cols = ["pair", "matches", "inliers", "R_err", "t_err", "psnr_hole", *STAGES, "total"]
     print(" ".join(f"{c:>10s}" if i else f"{c:<34s}" for i, c in enumerate(cols)))
     rows = []

@@ -35,7 +35,7 @@ from geofill.evaluation.pairs import load_pairs, pair_mask
 from geofill.pipeline import fill
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root: benchmarks.common
-from benchmarks.common import PAIRS
+from benchmarks.common import HELD_OUT, PAIRS
 
 WIDE = ("dev_wide_", "dev_mast3r_nle_tower_")
 VARIANTS = {
@@ -65,7 +65,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--variants", nargs="+", default=["sift", "nolearned", "ladder"], choices=VARIANTS)
     ap.add_argument("--set", action="append", metavar="KEY=VALUE", help="config override of every variant")
     args = ap.parse_args(argv)
-    pairs = load_pairs(args.pairs or [str(PAIRS)])
+    pairs = load_pairs(args.pairs or [str(PAIRS)], exclude=HELD_OUT)
     if not args.pairs:
         pairs = [p for p in pairs if p.id.startswith(WIDE)]
     cfg = FillConfig().updated(parse_overrides(args.set))

@@ -34,7 +34,7 @@ from geofill.config import FillConfig
 from geofill.evaluation.pairs import load_pair, pair_mask
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root: benchmarks.common
-from benchmarks.common import PAIRS, timed_child
+from benchmarks.common import HELD_OUT, PAIRS, timed_child
 
 GEOFILL = [sys.executable, "-m", "geofill.cli"]
 MODES = {
@@ -53,7 +53,9 @@ OVERHEAD_RUNNERS = {
 def dev_pairs(folder: Path) -> list[Path]:
     """The DEV pairs: every pair folder but the wide-baseline ``dev_wide_`` ones."""
     return sorted(
-        p for p in folder.iterdir() if (p / "meta.json").is_file() and not p.name.startswith("dev_wide_")
+        p
+        for p in folder.iterdir()
+        if (p / "meta.json").is_file() and not p.name.startswith("dev_wide_") and p.name not in HELD_OUT
     )
 
 

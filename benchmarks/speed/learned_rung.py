@@ -38,7 +38,7 @@ from geofill.match.xfeat import INSTALL, XFeatLighterGlue, missing_modules
 from geofill.prepare import prepare_views
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root: benchmarks.common
-from benchmarks.common import PAIRS
+from benchmarks.common import HELD_OUT, PAIRS
 
 WIDE = ("dev_wide_",)
 
@@ -68,7 +68,7 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     import torch
 
-    pairs = load_pairs(args.pairs or [str(PAIRS)])
+    pairs = load_pairs(args.pairs or [str(PAIRS)], exclude=HELD_OUT)
     if not args.pairs:
         pairs = [p for p in pairs if p.id.startswith(WIDE)]
     cfg = FillConfig()

@@ -30,7 +30,7 @@ from geofill.pipeline import fill
 from geofill.synthetic import make_pair
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root: benchmarks.common
-from benchmarks.common import PAIRS
+from benchmarks.common import HELD_OUT, PAIRS
 
 REAL = ("dev_cotracker_apple_video", "dev_opensfm_berlin_01_02", "dev_mast3r_nle_tower_a")
 
@@ -65,7 +65,7 @@ def main() -> int:
     sp = make_pair(seed=0, width=1280, height=720)
     cases.append(("synthetic 1280x720", sp.target, sp.hole, sp.source))
     if PAIRS.is_dir():
-        for pair in load_pairs([PAIRS]):
+        for pair in load_pairs([PAIRS], exclude=HELD_OUT):
             if pair.id in REAL:
                 hole = pair_mask(pair, 0)
                 cases.append(

@@ -34,7 +34,7 @@ from geofill.synthetic import make_pair
 from geofill.weights import WeightsUnavailable
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root: benchmarks.common
-from benchmarks.common import PAIRS
+from benchmarks.common import HELD_OUT, PAIRS
 
 
 @dataclass
@@ -61,7 +61,7 @@ def real_cases() -> list[Case]:
     if not PAIRS.is_dir():
         return []
     cases = []
-    for pair in load_pairs([PAIRS]):
+    for pair in load_pairs([PAIRS], exclude=HELD_OUT):
         if pair.path is None or not (pair.path / "depth_source.png").is_file():
             continue
         gt = cv2.imread(str(pair.path / "depth_source.png"), cv2.IMREAD_UNCHANGED).astype(np.float32) / 1000.0

@@ -27,7 +27,7 @@ from geofill.evaluation.pairs import load_pairs, pair_mask
 from geofill.pipeline import fill
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root: benchmarks.common
-from benchmarks.common import PAIRS
+from benchmarks.common import HELD_OUT, PAIRS
 
 
 def depth_metrics(pred: np.ndarray, gt: np.ndarray) -> tuple[float, float]:
@@ -40,7 +40,9 @@ def depth_metrics(pred: np.ndarray, gt: np.ndarray) -> tuple[float, float]:
 
 def main() -> int:
     true_k = "--default-intrinsics" not in sys.argv[1:]
-    pairs = [p for p in load_pairs([PAIRS]) if p.path and (p.path / "depth_source.png").is_file()]
+    pairs = [
+        p for p in load_pairs([PAIRS], exclude=HELD_OUT) if p.path and (p.path / "depth_source.png").is_file()
+    ]
     tmp = Path(tempfile.mkdtemp())
     print(f"{'pair':<34s} {'input':<14s} {'fit space':<10s} {'AbsRel':>7s} {'d<1.25':>7s} {'PSNR hole':>9s}")
     summary: dict[tuple[str, str], list[tuple[float, float, float]]] = {}

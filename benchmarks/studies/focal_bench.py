@@ -49,7 +49,7 @@ from geofill.prepare import prepare_views
 from geofill.synthetic import make_pair
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root: benchmarks.common
-from benchmarks.common import PAIRS
+from benchmarks.common import HELD_OUT, PAIRS
 
 METHODS = ("none", "search", "bougnoux", "auto")
 CFG = FillConfig()
@@ -65,7 +65,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--curve", help="comma-separated pair-id substrings: run only the fixed-focal PSNR curve")
     ap.add_argument("--curve-scales", default="0.85,0.9,0.95,1,1.05,1.1,1.2,1.35,1.5,1.65")
     args = ap.parse_args(argv)
-    pairs = load_pairs([args.pairs])
+    pairs = load_pairs([args.pairs], exclude=HELD_OUT)
     if args.curve:
         chosen = [p for p in pairs if any(k in p.id for k in args.curve.split(","))]
         if not chosen:

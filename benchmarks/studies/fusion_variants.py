@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root: benchmarks.common
-from benchmarks.common import MULTIVIEW
+from benchmarks.common import HELD_OUT, MULTIVIEW
 
 
 def _cases(pairs: list[str], protocol: str, seed: int):
@@ -39,7 +39,7 @@ def _cases(pairs: list[str], protocol: str, seed: int):
     from geofill.evaluation.removal import ProtocolSkip, make_case
     from geofill.synthetic import blanked
 
-    for pair in load_pairs(pairs):
+    for pair in load_pairs(pairs, exclude=HELD_OUT):
         if len(pair.sources) < 2:
             continue
         if protocol == "restoration":

@@ -25,7 +25,7 @@ from geofill.match.ladder import verify_fundamental
 from geofill.prepare import prepare_views
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root: benchmarks.common
-from benchmarks.common import PAIRS
+from benchmarks.common import HELD_OUT, PAIRS
 
 FACTORS = ((1.0, 0.5), (0.5, 1.0), (1.0, 0.7), (0.7, 1.0), (0.5, 0.5), (1.0, 1.4), (1.4, 1.0))
 
@@ -47,7 +47,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     cfg = FillConfig()
     mc = cfg.matching
-    for pair in load_pairs(args.pairs or [str(PAIRS)]):
+    for pair in load_pairs(args.pairs or [str(PAIRS)], exclude=HELD_OUT):
         hole = pair_mask(pair, 0, 100.0)
         views = prepare_views(pair.target, hole, pair.source, cfg, pair.exif.target, pair.exif.source)
         target = views.target.copy()

@@ -48,7 +48,7 @@ from geofill.pipeline import ReferenceArtifacts, fill, prepare_fill, run_referen
 from geofill.synthetic import make_pair
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root: benchmarks.common
-from benchmarks.common import PAIRS
+from benchmarks.common import HELD_OUT, PAIRS
 
 
 @dataclass
@@ -167,7 +167,7 @@ def synthetic(args, cfg: FillConfig) -> None:
 
 
 def real(args, cfg: FillConfig) -> None:
-    pairs = load_pairs([args.pairs])
+    pairs = load_pairs([args.pairs], exclude=HELD_OUT)
     if args.only:
         pairs = [p for p in pairs if p.id in args.only.split(",")]
     print(f"real pairs, pipeline start, brush hole seed 0; paper iterations x{args.paper_scale:g}")

@@ -33,7 +33,7 @@ from geofill.refine import refine_render
 from geofill.render import RenderResult
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root: benchmarks.common
-from benchmarks.common import PAIRS
+from benchmarks.common import HELD_OUT, PAIRS
 
 #: name -> refine-config overrides (on top of the base config's refine section).
 VARIANTS = {
@@ -95,7 +95,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{'pair':<34s}" + "".join(f"{n:>14s}" for n in names))
     table: dict[str, list[float]] = {n: [] for n in names}
     seconds: dict[str, list[float]] = {n: [] for n in variants}
-    for pair in load_pairs([args.pairs]):
+    for pair in load_pairs([args.pairs], exclude=HELD_OUT):
         hole = pair_mask(pair, args.seed)
         masked = pair.target.copy()
         masked[hole] = 0

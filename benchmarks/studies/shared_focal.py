@@ -21,7 +21,7 @@ from geofill.evaluation.pairs import load_pairs, pair_mask
 from geofill.pipeline import ReferenceArtifacts, prepare_fill, run_reference, shared_focal
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root: benchmarks.common
-from benchmarks.common import MULTIVIEW
+from benchmarks.common import HELD_OUT, MULTIVIEW
 
 
 def _error_pct(art: ReferenceArtifacts, f_true: float) -> float:
@@ -37,7 +37,7 @@ def main(argv: list[str] | None = None) -> int:
     cfg = FillConfig()
     per_pair_all, shared_all = [], []
     print(f"{'set':<32s} {'per pair (each reference), % error':<40s} {'median':>7s} {'shared':>7s}  status")
-    for pair in load_pairs([args.sets]):
+    for pair in load_pairs([args.sets], exclude=HELD_OUT):
         K = pair.meta.get("K_target")
         if K is None or len(pair.sources) < 2:
             continue

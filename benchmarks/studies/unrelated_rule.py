@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root: benchmarks.common
-from benchmarks.common import PAIRS
+from benchmarks.common import HELD_OUT, PAIRS
 
 from geofill import FillConfig
 from geofill.evaluation.pairs import load_pair, pair_mask
@@ -76,7 +76,7 @@ def measure(
 ) -> list[dict]:
     """Every case of the DEV pairs ``which`` (each appended to ``save`` as a JSON line when done)."""
     cfg = FillConfig()
-    pairs = [load_pair(p) for p in sorted(PAIRS.iterdir()) if p.is_dir()]
+    pairs = [load_pair(p) for p in sorted(PAIRS.iterdir()) if p.is_dir() and p.name not in HELD_OUT]
     cases: list[dict] = []
 
     def done(case: dict) -> None:

@@ -26,7 +26,7 @@ from geofill.match import match_pair
 from geofill.prepare import prepare_views
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root: benchmarks.common
-from benchmarks.common import PAIRS
+from benchmarks.common import HELD_OUT, PAIRS
 
 
 def rotation_error_deg(pair, m, views) -> float:
@@ -65,7 +65,7 @@ def main(argv: list[str] | None = None) -> int:
     head = ("variant", "rung", "verified", "support", "R_err", "time_s")
     print(f"{'pair':<40s} " + " ".join(f"{h:>8s}" for h in head))
     ratios = []
-    for pair in load_pairs(args.pairs or [str(PAIRS)]):
+    for pair in load_pairs(args.pairs or [str(PAIRS)], exclude=HELD_OUT):
         hole = pair_mask(pair, args.seed, 100.0)
         views = prepare_views(pair.target, hole, pair.source, cfg, pair.exif.target, pair.exif.source)
         target = views.target.copy()

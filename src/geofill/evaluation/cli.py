@@ -44,6 +44,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="a pair folder, a folder of pair folders, synthetic:N (rendered pairs) or synthetic-views:N "
         "(rendered sets with two references) (repeatable)",
     )
+    parser.add_argument(
+        "--exclude",
+        action="append",
+        default=[],
+        metavar="NAME",
+        help="leave the pair folder NAME out of a folder of pair folders, unread (repeatable)",
+    )
     parser.add_argument("--out", required=True, metavar="OUTDIR", help="folder for the results")
     parser.add_argument(
         "--seed",
@@ -139,7 +146,7 @@ def run(args: argparse.Namespace) -> int:
         base = FillConfig.from_json(args.config) if args.config else FillConfig()
         register_geofill_methods(base.updated(parse_overrides(args.set)))
         methods = resolve_methods([m.strip() for m in args.methods.split(",")] if args.methods else None)
-        pairs = load_pairs(args.pairs)
+        pairs = load_pairs(args.pairs, exclude=args.exclude)
         if args.limit is not None:
             pairs = pairs[: max(0, args.limit)]
         if args.sweep == "hole-size":

@@ -169,9 +169,10 @@ def synthetic_view_sets(n: int) -> list[Pair]:
     return sets
 
 
-def load_pairs(dirs: Sequence[str | Path]) -> list[Pair]:
+def load_pairs(dirs: Sequence[str | Path], exclude: Sequence[str] = ()) -> list[Pair]:
     """Pairs from each entry of ``dirs``: a pair folder, a folder of pair folders, or
-    ``synthetic:N``. Sorted by id; ids must be unique."""
+    ``synthetic:N``. Sorted by id; ids must be unique. The pair folders named in ``exclude`` are
+    left out of a folder of pair folders without being read."""
     pairs: list[Pair] = []
     for entry in dirs:
         text = str(entry)
@@ -186,7 +187,7 @@ def load_pairs(dirs: Sequence[str | Path]) -> list[Pair]:
                 pairs.extend(make(int(count)))
                 break
         else:
-            pairs.extend(_load_folder(Path(entry)))
+            pairs.extend(_load_folder(Path(entry), frozenset(exclude)))
     ids = [p.id for p in pairs]
     duplicates = sorted({i for i in ids if ids.count(i) > 1})
     if duplicates:
@@ -194,13 +195,17 @@ def load_pairs(dirs: Sequence[str | Path]) -> list[Pair]:
     return sorted(pairs, key=lambda p: p.id)
 
 
-def _load_folder(folder: Path) -> list[Pair]:
-    """A pair folder, or a folder of pair folders."""
+def _load_folder(folder: Path, exclude: frozenset[str]) -> list[Pair]:
+    """A pair folder, or a folder of pair folders (those named in ``exclude`` left out)."""
     if not folder.is_dir():
         raise MissingFileError(f"pairs folder not found: {folder}")
     if _find_image(folder, "target") is not None:
         return [load_pair(folder)]
-    subdirs = sorted(d for d in folder.iterdir() if d.is_dir() and _find_image(d, "target") is not None)
+    subdirs = sorted(
+        d
+        for d in folder.iterdir()
+        if d.is_dir() and d.name not in exclude and _find_image(d, "target") is not None
+    )
     if not subdirs:
         raise InputError(f"{folder} holds no pair folders (with target.png/.jpg)")
     return [load_pair(d) for d in subdirs]

@@ -14,9 +14,9 @@ import time
 from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
-from fastapi import FastAPI, Request
+from fastapi import FastAPI, Query, Request
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import FileResponse, JSONResponse, Response
 from fastapi.staticfiles import StaticFiles
@@ -39,6 +39,9 @@ from .schema import (
 )
 from .uploads import SOURCE_MASK_FIELD, UploadError, receive_fill_form
 from .worker import COVERAGE_FILE, RESULT_FILE, source_file, source_mask_file
+
+#: Media type of each file a finished job serves, by extension.
+_MEDIA_TYPES = {".png": "image/png", ".jpg": "image/jpeg", ".webp": "image/webp", ".tif": "image/tiff"}
 
 STATIC = Path(__file__).parent / "static"
 #: Job ids are ``secrets.token_urlsafe(24)``: anything else is unknown without a lookup.
@@ -341,16 +344,35 @@ def create_app(
         path = job.folder / name
         if not path.is_file():  # expired between the lookup and now
             return _unknown()
-        return FileResponse(path, media_type="image/png", headers={"Cache-Control": "no-store"})
+        return FileResponse(
+            path,
+            media_type=_MEDIA_TYPES[path.suffix],
+            filename=f"geofill-{path.name}",
+            content_disposition_type="inline",
+            headers={"Cache-Control": "no-store"},
+        )
 
     @app.get(
         "/api/v1/jobs/{job_id}/result",
-        summary="The filled image (PNG, full resolution)",
+        summary="The filled image, full resolution: in the target's own format (a JPEG target at its "
+        "own quality, EXIF and ICC kept), or lossless PNG with format=png",
         response_class=FileResponse,
-        responses={200: {"content": {"image/png": {}}}, **_JOB_FILE_ERRORS},
+        responses={
+            200: {"content": {t: {} for t in sorted(set(_MEDIA_TYPES.values()))}},
+            **_JOB_FILE_ERRORS,
+        },
     )
-    async def get_result(job_id: str) -> Response:
-        return _job_file(job_id, RESULT_FILE)
+    async def get_result(
+        job_id: str,
+        format: Literal["as_uploaded", "png"] = Query(
+            "as_uploaded", description="as_uploaded: the target's own format; png: lossless PNG"
+        ),
+    ) -> Response:
+        job = manager().get(job_id) if _job_id_ok(job_id) else None
+        name = RESULT_FILE
+        if format == "as_uploaded" and job is not None and job.summary is not None:
+            name = job.summary.get("result_file", RESULT_FILE)
+        return _job_file(job_id, name)
 
     @app.get(
         "/api/v1/jobs/{job_id}/coverage",

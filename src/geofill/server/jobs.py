@@ -21,12 +21,12 @@ from pathlib import Path
 from typing import Any
 
 from ..progress import STAGE_WORDS
-from .worker import COVERAGE_FILE, RESULT_FILE, JobSpec, worker_main
+from .worker import COVERAGE_FILE, RESULT_AS_UPLOADED, RESULT_FILE, JobSpec, worker_main
 
 #: Stage messages and notes kept per job (a runaway pipeline cannot grow a job without bound).
 MAX_NOTES = 200
 #: The files a finished job keeps (the client may still download them); its uploads are deleted.
-KEPT_FILES = frozenset({RESULT_FILE, COVERAGE_FILE})
+KEPT_FILES = frozenset({RESULT_FILE, COVERAGE_FILE, *RESULT_AS_UPLOADED.values()})
 #: Why a request is refused when finished jobs' files cannot make room.
 DISK_FULL = "the server's disk space for jobs is full"
 #: How often (s) a slot checks for Cancel while its worker is busy (messages wake it at once).

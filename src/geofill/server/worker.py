@@ -31,6 +31,10 @@ REFERENCE_RGB = ((40, 170, 90), (50, 120, 220), (240, 170, 30), (170, 80, 200), 
 COVERAGE_ALPHA = 170
 
 TARGET_FILE, MASK_FILE, RESULT_FILE, COVERAGE_FILE = "target", "mask", "result.png", "coverage.png"
+#: The result in the target's own format (JPEG at the target's quantisation tables, EXIF and ICC
+#: kept), written beside the lossless PNG when the target was uploaded as one of these: a
+#: photographer's 2 MB JPEG comes back as a JPEG of about its size, not an 8 MB PNG.
+RESULT_AS_UPLOADED = {"JPEG": "result.jpg", "MPO": "result.jpg", "WEBP": "result.webp", "TIFF": "result.tif"}
 
 
 def source_file(k: int) -> str:
@@ -172,11 +176,15 @@ def execute(spec: JobSpec, send: Callable[[tuple], None]) -> dict[str, Any]:
             else None
             for k, s in enumerate(sources, 1)
         ]
+        with Image.open(folder / TARGET_FILE) as probe:  # reads the header only
+            as_uploaded = RESULT_AS_UPLOADED.get(probe.format or "", RESULT_FILE)
     outcome = run_fill(target, hole, sources, cfg, prog, masks)
     with prog.stage("write result"):
         # With the target's EXIF, as the command line writes it: the lens it names is the focal
         # prior of a fill that starts again from this result.
         write_image_atomic(folder / RESULT_FILE, outcome.image, metadata=target.metadata)
+        if as_uploaded != RESULT_FILE:
+            write_image_atomic(folder / as_uploaded, outcome.image, metadata=target.metadata)
         # RGBA, which write_image_atomic (RGB outputs) does not write; the job is not done before
         # this returns, so nobody reads a half-written file.
         Image.fromarray(coverage_rgba(outcome.source_map)).save(folder / COVERAGE_FILE, compress_level=3)
@@ -188,6 +196,7 @@ def execute(spec: JobSpec, send: Callable[[tuple], None]) -> dict[str, Any]:
         "coverage": rows,
         "source_masks": list(spec.source_masks),
         "summary": "; ".join(filter(None, (plain_summary(rows), outcome.refused))),
+        "result_file": as_uploaded,
         "report": outcome.report,
         "timings_s": dict(prog.timings),
         "wall_s": prog.wall_s() - started,

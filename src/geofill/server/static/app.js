@@ -846,7 +846,8 @@ async function showResult(job) {
   const { id, refsVersion } = state.job;
   let result, coverage;
   try {
-    result = await fetchBitmap(`/api/v1/jobs/${id}/result`);
+    // Lossless for the preview and for "Keep editing" (no JPEG generation loss between edits).
+    result = await fetchBitmap(`/api/v1/jobs/${id}/result?format=png`);
     coverage = await fetchBitmap(`/api/v1/jobs/${id}/coverage`);
   } catch (e) {
     return endJob(`The result could not be loaded: ${e.message}`);
@@ -870,7 +871,9 @@ async function showResult(job) {
   const notes = [...(job.notices || [])];
   if (job.status !== "single_image") notes.push(...job.fallbacks);
   $("notices").textContent = notes.join(" ");
+  // The download keeps the photo's own format (a JPEG at its own quality, EXIF kept).
   $("download").href = `/api/v1/jobs/${id}/result`;
+  $("download").download = `geofill-${job.result_file || "result.png"}`;
   $("result").hidden = false;
   $("compare").hidden = !isTarget(state.doc);
   $("split").value = dividerStart();
