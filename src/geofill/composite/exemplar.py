@@ -46,7 +46,7 @@ import numpy as np
 
 from ..utils.distance import distance_to
 from ..utils.jit import njit_cached
-from ..utils.membrane import membrane_fill
+from ..utils.membrane import membrane_fill, resize_channels
 from .surfaces import segment
 
 #: Rows per search band (one thread's unit of work); odd iterations shift the bands by half of it.
@@ -78,13 +78,15 @@ class ExemplarSettings:
     """``patch_radius``: patches are (2r + 1)^2 px; ``iterations``: EM iterations at the coarsest
     level (halved, to at least ``min_iterations``, at each finer level); ``structure_sigma``: the
     Gaussian scale (px) above which the fill is Telea's diffusion (0: exemplars only); ``seed``: of
-    the search."""
+    the search; ``reuse_penalty``: what copying a source region once more costs, in median patch
+    distances (0: nothing; see :func:`_reuse_cost`)."""
 
     patch_radius: int = 3
     iterations: int = 8
     min_iterations: int = 1
     structure_sigma: float = 4.0
     seed: int = 0
+    reuse_penalty: float = 1.0
 
 
 @njit_cached(inline="always")
@@ -123,14 +125,19 @@ def _ssd(img, ty, tx, sy, sx, r, bound):  # pragma: no cover - compiled
         if total > bound:
             return total
     return total
+    return total
 
 
 @njit_cached(nogil=True, fastmath=True)
-def _search(img, valid, slab, tlab, tid, ty, tx, nnf, dist, bands, step, radius, seed, r):  # pragma: no cover
+def _search(  # pragma: no cover - compiled
+    img, valid, slab, tlab, tid, ty, tx, nnf, dist, reuse, bands, step, radius, seed, r
+):
     # One PatchMatch pass over the bands listed in ``bands`` (rows: first, last+1 target index):
     # propagation from the previous neighbour in scan order (left/up for step 1, right/down for
     # step -1, inside the band only), then a random search around the best match at halving radii.
-    # A target with a surface (``tlab`` >= 0) takes sources of that surface (``slab``) only.
+    # A target with a surface (``tlab`` >= 0) takes sources of that surface (``slab``) only. A
+    # match costs its patch distance plus ``reuse`` at its source (what copying that source region
+    # once more costs); ``dist`` keeps the patch distance alone (the vote's weights).
     h, w = img.shape[0], img.shape[1]
     for b in range(bands.shape[0]):
         lo, hi = bands[b, 0], bands[b, 1]
@@ -139,7 +146,8 @@ def _search(img, valid, slab, tlab, tid, ty, tx, nnf, dist, bands, step, radius,
             k = lo + i if step > 0 else hi - 1 - i
             y, x = ty[k], tx[k]
             tl = tlab[k]
-            by, bx, best = nnf[k, 0], nnf[k, 1], dist[k]
+            by, bx, bestd = nnf[k, 0], nnf[k, 1], dist[k]
+            best = bestd + reuse[by, bx]
             for nb in range(2):
                 py, px = (y, x - step) if nb == 0 else (y - step, x)
                 if py < 0 or py >= h or px < 0 or px >= w:
@@ -155,9 +163,10 @@ def _search(img, valid, slab, tlab, tid, ty, tx, nnf, dist, bands, step, radius,
                     continue
                 if cy == by and cx == bx:
                     continue
-                d = _ssd(img, y, x, cy, cx, r, best)
-                if d < best:
-                    by, bx, best = cy, cx, d
+                extra = reuse[cy, cx]
+                d = _ssd(img, y, x, cy, cx, r, best - extra)
+                if d + extra < best:
+                    by, bx, best, bestd = cy, cx, d + extra, d
             rad = radius
             t = 0
             while rad >= 1:
@@ -170,10 +179,11 @@ def _search(img, valid, slab, tlab, tid, ty, tx, nnf, dist, bands, step, radius,
                     continue
                 if tl >= 0 and slab[cy, cx] != tl:
                     continue
-                d = _ssd(img, y, x, cy, cx, r, best)
-                if d < best:
-                    by, bx, best = cy, cx, d
-            nnf[k, 0], nnf[k, 1], dist[k] = by, bx, best
+                extra = reuse[cy, cx]
+                d = _ssd(img, y, x, cy, cx, r, best - extra)
+                if d + extra < best:
+                    by, bx, best, bestd = cy, cx, d + extra, d
+            nnf[k, 0], nnf[k, 1], dist[k] = by, bx, bestd
 
 
 @njit_cached(nogil=True, fastmath=True)
@@ -400,7 +410,12 @@ def complete(image: np.ndarray, hole: np.ndarray, settings: ExemplarSettings | N
                 for sweep, step in enumerate((1, -1)):
                     bands = _bands(lev.ty, (2 * it + sweep) % 2)
                     seed = int(_seed(s.seed, top + li, it, sweep))
-                    _search_parallel(pool, lev, nnf, dist, bands, step, radius, seed, r)
+                    reuse = _reuse_cost(lev, nnf, dist, side, s.reuse_penalty)
+                    _search_parallel(pool, lev, nnf, dist, reuse, bands, step, radius, seed, r)
+                if it == iters - 1:
+                    # The next level starts from the matches alone, and the result is assembled
+                    # from them: a last vote would paint pixels nothing reads.
+                    break
                 _vote_parallel(pool, lev, nnf, _weights(dist, r), r)
                 _distances_parallel(pool, lev, nnf, dist, r)
     finally:
@@ -419,11 +434,12 @@ def complete(image: np.ndarray, hole: np.ndarray, settings: ExemplarSettings | N
         known = ~holes[0]
         sigma = s.structure_sigma / 2**top
         structure, low = colour.copy(), colour.copy()
+        steps = _surface_steps(colour, known, surfaces, side)
+        diffused = membrane_fill(colour - steps, known) + steps
         for lab in range(int(surfaces.max()) + 1):
             on = surfaces == lab
             if not (on & known).any():
                 continue
-            diffused = membrane_fill(colour, known & on, on)
             structure[on] = _local_mean(diffused, on, sigma)[on]
             low[on] = _local_mean(colour, known & on, sigma)[on]
     _assemble(out, image, hole, prev, nnf, top, structure, low)
@@ -501,10 +517,62 @@ def _assemble(
         out[a:b][part] = np.clip(np.rint(tex[part]), 0, 255).astype(np.uint8)
 
 
+#: Width (px) of the bands either side of where two surfaces meet whose colours give the step, and
+#: their distance from it (a boundary from averaged appearance can be a few pixels off).
+_STEP_BAND_PX = 5
+_STEP_GAP_PX = 3
+
+
+def _band(mask: np.ndarray, inner: int, outer: int) -> np.ndarray:
+    """The pixels more than ``inner`` and at most ``outer`` px (chessboard) from ``mask``."""
+    m = mask.astype(np.uint8)
+    grow = cv2.dilate(m, np.ones((2 * outer + 1,) * 2, np.uint8)) > 0
+    return grow & ~(cv2.dilate(m, np.ones((2 * inner + 1,) * 2, np.uint8)) > 0)
+
+
+def _surface_steps(colour: np.ndarray, known: np.ndarray, surfaces: np.ndarray, ring_px: int) -> np.ndarray:
+    """Per pixel (HxWx3), its surface's colour offset: the offsets differ by the colour step where
+    the surfaces meet on the known ring ``ring_px`` wide around the hole (the mean colour in the
+    bands either side), or, for surfaces that do not meet there, by their mean colours on it
+    (least squares over the pairs, the first surface's offset 0)."""
+    n = int(surfaces.max()) + 1
+    if n == 1:
+        return np.zeros_like(colour)
+    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * ring_px + 1,) * 2)
+    ring = known & (cv2.dilate((~known).astype(np.uint8), disc) > 0)
+    on = [ring & (surfaces == lab) for lab in range(n)]
+    near = [_band(m, _STEP_GAP_PX, _STEP_GAP_PX + _STEP_BAND_PX) for m in on]
+    rows, rhs = [], []
+    for a in range(n):
+        for b in range(a + 1, n):
+            side_a, side_b = on[a] & near[b], on[b] & near[a]
+            if side_a.sum() < ring_px or side_b.sum() < ring_px:
+                side_a, side_b = on[a], on[b]
+            if not side_a.any() or not side_b.any():
+                continue
+            row = np.zeros(n)
+            row[a], row[b] = 1.0, -1.0
+            rows.append(row)
+            rhs.append(colour[side_a].mean(axis=0) - colour[side_b].mean(axis=0))
+    anchor = np.zeros(n)
+    anchor[0] = 1.0
+    offsets = np.linalg.lstsq(np.array([anchor, *rows]), np.array([np.zeros(3), *rhs]), rcond=None)[0]
+    return offsets.astype(np.float32)[surfaces]
+
+
 def _local_mean(values: np.ndarray, weight: np.ndarray, sigma: float) -> np.ndarray:
-    """Gaussian mean (scale ``sigma``) of ``values`` over the pixels where ``weight`` is True."""
-    w = cv2.GaussianBlur(weight.astype(np.float32), (0, 0), sigma)
-    return cv2.GaussianBlur(values * weight[..., None], (0, 0), sigma) / np.maximum(w, 1e-6)[..., None]
+    """Gaussian mean (scale ``sigma``) of ``values`` over the pixels where ``weight`` is True.
+
+    At ``sigma`` >= 2 blurred on the image reduced ``sigma // 2`` times and scaled back: a Gaussian
+    that wide passes nothing the reduction loses (its response at the reduced Nyquist frequency is
+    below 1e-8 at sigma 4 px), and the full-size blurs were a tenth of a 720p painting."""
+    f = max(1, int(sigma // 2))
+    h, w = weight.shape
+    size = (-(-w // f), -(-h // f))
+    num = resize_channels(values * weight[..., None], size, cv2.INTER_AREA)
+    den = cv2.resize(weight.astype(np.float32), size, interpolation=cv2.INTER_AREA)
+    num, den = cv2.GaussianBlur(num, (0, 0), sigma / f), cv2.GaussianBlur(den, (0, 0), sigma / f)
+    return resize_channels(num / np.maximum(den, 1e-6)[..., None], (w, h), cv2.INTER_LINEAR)
 
 
 def _has_patch(hole: np.ndarray, side: int) -> bool:
@@ -542,6 +610,21 @@ def _bands(ty: np.ndarray, shifted: int) -> np.ndarray:
     idx = np.searchsorted(ty, edges)
     bands = np.stack([idx[:-1], idx[1:]], axis=1)
     return np.ascontiguousarray(bands[bands[:, 1] > bands[:, 0]], dtype=np.int64)
+
+
+def _reuse_cost(lev: _Level, nnf: np.ndarray, dist: np.ndarray, side: int, penalty: float) -> np.ndarray:
+    """Per source pixel, what one more copy of the region around it costs: ``penalty`` times the
+    median patch distance for each copy of it beyond the first that the current matches make (the
+    share of the side x side window around it that is some target's match: a coherent copy uses
+    every centre once). Without it a small distinctive blob next to a hole is copied into it once
+    per place its context fits (PatchMatch minimises each patch's distance alone)."""
+    h, w = lev.hole.shape
+    if penalty <= 0:
+        return np.zeros((h, w), np.float32)
+    used = np.bincount(nnf[:, 0] * w + nnf[:, 1], minlength=h * w).reshape(h, w).astype(np.float32)
+    copies = cv2.boxFilter(used, -1, (side, side), borderType=cv2.BORDER_CONSTANT)
+    scale = penalty * max(float(np.median(dist)), 1e-6)
+    return (np.maximum(copies - 1.0, 0.0) * scale).astype(np.float32)
 
 
 def _weights(dist: np.ndarray, r: int) -> np.ndarray:
@@ -586,7 +669,7 @@ def _map(pool: ThreadPoolExecutor | None, fn, items) -> None:
         list(pool.map(fn, items))
 
 
-def _search_parallel(pool, lev, nnf, dist, bands, step, radius, seed, r) -> None:
+def _search_parallel(pool, lev, nnf, dist, reuse, bands, step, radius, seed, r) -> None:
     parts = [bands[i :: 2 * _workers()] for i in range(2 * _workers())]
     _map(
         pool,
@@ -600,6 +683,7 @@ def _search_parallel(pool, lev, nnf, dist, bands, step, radius, seed, r) -> None
             lev.tx,
             nnf,
             dist,
+            reuse,
             b,
             step,
             radius,
