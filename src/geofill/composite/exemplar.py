@@ -17,11 +17,17 @@ Telea; each finer level starts from the coarser one's matches doubled and only r
 14-px search); the finest level's pixels are taken from their own patch's match, not averaged,
 which would blur.
 
-Finally each hole pixel is its surface's diffusion (a membrane from the surface's known pixels),
-blurred at the Gaussian scale ``structure_sigma``, plus the copied pixel's detail: its difference
-from the mean of its own surface's known pixels around it at that scale. A misplaced exemplar
+Finally each hole pixel is the structure, blurred within its surface at the Gaussian scale
+``structure_sigma``, plus the copied pixel's detail: its difference from the mean of its own
+surface's known pixels around it at that scale. The structure is one membrane over the hole from
+all the known pixels, of the colour less a per-surface offset, the offset added back: the offsets
+differ by the colour step where the surfaces meet on the ring, so a wall's colour does not bleed
+onto the ground, yet a smooth gradient that the colours split into two surfaces runs on (a
+membrane per surface, with a free edge where they met, made it two plateaus). A misplaced exemplar
 structure costs twice in error, a diffused one once; detail measured in its own context puts no
-light halo round a dark copy, as the difference from the pasted mosaic's own mean did.
+light halo round a dark copy, as the difference from the pasted mosaic's own mean did. The search
+charges each match for the copies its source region already has (``reuse_penalty``), so a small
+distinctive thing is not pasted into the hole once per place its context fits.
 
 Levels longer than 1400 px are not searched, and memory is bounded by the searched levels: the
 finer ones are never held whole, the full-resolution result is assembled in row strips.
@@ -427,10 +433,11 @@ def complete(image: np.ndarray, hole: np.ndarray, settings: ExemplarSettings | N
     structure = low = None
     if s.structure_sigma > 0:
         # Large-scale structure from diffusion, texture from the exemplars: a misplaced exemplar
-        # structure costs twice in error, a diffused one once. Each surface is diffused from its own
-        # known pixels (a membrane with a free edge where surfaces meet), so the wall's colour does
-        # not bleed onto the ground, at the finest searched level (at 4K a full-resolution
-        # diffusion alone would cost more than the search). What is copied is each source pixel's
+        # structure costs twice in error, a diffused one once. The colour less each surface's step
+        # is diffused from all known pixels and the steps added back (see the module docstring),
+        # so the wall's colour does not bleed onto the ground and a gradient split into surfaces
+        # runs on, at the finest searched level (at 4K a full-resolution diffusion alone would
+        # cost more than the search). What is copied is each source pixel's
         # detail, its difference from the mean of the known pixels of its surface around it: the
         # mean of the pasted mosaic would put a light halo round a dark copy, and one taken across
         # surfaces would blur the line where they meet.
