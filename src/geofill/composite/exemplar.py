@@ -26,8 +26,8 @@ onto the ground, yet a smooth gradient that the colours split into two surfaces 
 membrane per surface, with a free edge where they met, made it two plateaus). A misplaced exemplar
 structure costs twice in error, a diffused one once; detail measured in its own context puts no
 light halo round a dark copy, as the difference from the pasted mosaic's own mean did. The search
-charges each match for the copies its source region already has (``reuse_penalty``), so a small
-distinctive thing is not pasted into the hole once per place its context fits.
+charges each match for the copies its source region already has (``reuse_penalty``), so two
+parts of the hole do not both copy one region where another fits nearly as well.
 
 Levels longer than 1400 px are not searched, and memory is bounded by the searched levels: the
 finer ones are never held whole, the full-resolution result is assembled in row strips.
@@ -576,7 +576,7 @@ def _local_mean(values: np.ndarray, weight: np.ndarray, sigma: float) -> np.ndar
 
     At ``sigma`` >= 2 blurred on the image reduced ``sigma // 2`` times and scaled back: a Gaussian
     that wide passes nothing the reduction loses (its response at the reduced Nyquist frequency is
-    below 1e-8 at sigma 4 px), and the full-size blurs were a tenth of a 720p painting."""
+    below 1e-8 at sigma 4 px); the full-size blurs took 42 ms per call at 720p, these 19 ms."""
     f = max(1, int(sigma // 2))
     h, w = weight.shape
     size = (-(-w // f), -(-h // f))
@@ -631,8 +631,8 @@ def _reuse_cost(lev: _Level, nnf: np.ndarray, dist: np.ndarray, side: int, penal
     """Per source pixel, what one more copy of the region around it costs: ``penalty`` times the
     median patch distance for each copy of it beyond the first that the current matches make (the
     share of the side x side window around it that is some target's match: a coherent copy uses
-    every centre once). Without it a small distinctive blob next to a hole is copied into it once
-    per place its context fits (PatchMatch minimises each patch's distance alone)."""
+    every centre once). PatchMatch minimises each patch's distance alone, so without it nothing
+    keeps two parts of the hole from copying the same distinctive region."""
     h, w = lev.hole.shape
     if penalty <= 0:
         return np.zeros((h, w), np.float32)
