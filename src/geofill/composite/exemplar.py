@@ -92,7 +92,7 @@ class ExemplarSettings:
     min_iterations: int = 1
     structure_sigma: float = 4.0
     seed: int = 0
-    reuse_penalty: float = 1.0
+    reuse_penalty: float = 0.25
 
 
 @njit_cached(inline="always")
