@@ -25,9 +25,7 @@ differ by the colour step where the surfaces meet on the ring, so a wall's colou
 onto the ground, yet a smooth gradient that the colours split into two surfaces runs on (a
 membrane per surface, with a free edge where they met, made it two plateaus). A misplaced exemplar
 structure costs twice in error, a diffused one once; detail measured in its own context puts no
-light halo round a dark copy, as the difference from the pasted mosaic's own mean did. The search
-charges each match for the copies its source region already has (``reuse_penalty``), so two
-parts of the hole do not both copy one region where another fits nearly as well.
+light halo round a dark copy, as the difference from the pasted mosaic's own mean did.
 
 Levels longer than 1400 px are not searched, and memory is bounded by the searched levels: the
 finer ones are never held whole, the full-resolution result is assembled in row strips.
@@ -84,15 +82,13 @@ class ExemplarSettings:
     """``patch_radius``: patches are (2r + 1)^2 px; ``iterations``: EM iterations at the coarsest
     level (halved, to at least ``min_iterations``, at each finer level); ``structure_sigma``: the
     Gaussian scale (px) above which the fill is Telea's diffusion (0: exemplars only); ``seed``: of
-    the search; ``reuse_penalty``: what copying a source region once more costs, in median patch
-    distances (0: nothing; see :func:`_reuse_cost`)."""
+    the search."""
 
     patch_radius: int = 3
     iterations: int = 8
     min_iterations: int = 1
     structure_sigma: float = 4.0
     seed: int = 0
-    reuse_penalty: float = 0.25
 
 
 @njit_cached(inline="always")
@@ -131,19 +127,14 @@ def _ssd(img, ty, tx, sy, sx, r, bound):  # pragma: no cover - compiled
         if total > bound:
             return total
     return total
-    return total
 
 
 @njit_cached(nogil=True, fastmath=True)
-def _search(  # pragma: no cover - compiled
-    img, valid, slab, tlab, tid, ty, tx, nnf, dist, reuse, bands, step, radius, seed, r
-):
+def _search(img, valid, slab, tlab, tid, ty, tx, nnf, dist, bands, step, radius, seed, r):  # pragma: no cover
     # One PatchMatch pass over the bands listed in ``bands`` (rows: first, last+1 target index):
     # propagation from the previous neighbour in scan order (left/up for step 1, right/down for
     # step -1, inside the band only), then a random search around the best match at halving radii.
-    # A target with a surface (``tlab`` >= 0) takes sources of that surface (``slab``) only. A
-    # match costs its patch distance plus ``reuse`` at its source (what copying that source region
-    # once more costs); ``dist`` keeps the patch distance alone (the vote's weights).
+    # A target with a surface (``tlab`` >= 0) takes sources of that surface (``slab``) only.
     h, w = img.shape[0], img.shape[1]
     for b in range(bands.shape[0]):
         lo, hi = bands[b, 0], bands[b, 1]
@@ -152,8 +143,7 @@ def _search(  # pragma: no cover - compiled
             k = lo + i if step > 0 else hi - 1 - i
             y, x = ty[k], tx[k]
             tl = tlab[k]
-            by, bx, bestd = nnf[k, 0], nnf[k, 1], dist[k]
-            best = bestd + reuse[by, bx]
+            by, bx, best = nnf[k, 0], nnf[k, 1], dist[k]
             for nb in range(2):
                 py, px = (y, x - step) if nb == 0 else (y - step, x)
                 if py < 0 or py >= h or px < 0 or px >= w:
@@ -169,10 +159,9 @@ def _search(  # pragma: no cover - compiled
                     continue
                 if cy == by and cx == bx:
                     continue
-                extra = reuse[cy, cx]
-                d = _ssd(img, y, x, cy, cx, r, best - extra)
-                if d + extra < best:
-                    by, bx, best, bestd = cy, cx, d + extra, d
+                d = _ssd(img, y, x, cy, cx, r, best)
+                if d < best:
+                    by, bx, best = cy, cx, d
             rad = radius
             t = 0
             while rad >= 1:
@@ -185,11 +174,10 @@ def _search(  # pragma: no cover - compiled
                     continue
                 if tl >= 0 and slab[cy, cx] != tl:
                     continue
-                extra = reuse[cy, cx]
-                d = _ssd(img, y, x, cy, cx, r, best - extra)
-                if d + extra < best:
-                    by, bx, best, bestd = cy, cx, d + extra, d
-            nnf[k, 0], nnf[k, 1], dist[k] = by, bx, bestd
+                d = _ssd(img, y, x, cy, cx, r, best)
+                if d < best:
+                    by, bx, best = cy, cx, d
+            nnf[k, 0], nnf[k, 1], dist[k] = by, bx, best
 
 
 @njit_cached(nogil=True, fastmath=True)
@@ -420,8 +408,7 @@ def complete(image: np.ndarray, hole: np.ndarray, settings: ExemplarSettings | N
                 for sweep, step in enumerate((1, -1) if li or n_levels == 1 else (1,)):
                     bands = _bands(lev.ty, (2 * it + sweep) % 2)
                     seed = int(_seed(s.seed, top + li, it, sweep))
-                    reuse = _reuse_cost(lev, nnf, dist, side, s.reuse_penalty)
-                    _search_parallel(pool, lev, nnf, dist, reuse, bands, step, radius, seed, r)
+                    _search_parallel(pool, lev, nnf, dist, bands, step, radius, seed, r)
                 if it == iters - 1:
                     # The next level starts from the matches alone, and the result is assembled
                     # from them: a last vote would paint pixels nothing reads.
@@ -627,21 +614,6 @@ def _bands(ty: np.ndarray, shifted: int) -> np.ndarray:
     return np.ascontiguousarray(bands[bands[:, 1] > bands[:, 0]], dtype=np.int64)
 
 
-def _reuse_cost(lev: _Level, nnf: np.ndarray, dist: np.ndarray, side: int, penalty: float) -> np.ndarray:
-    """Per source pixel, what one more copy of the region around it costs: ``penalty`` times the
-    median patch distance for each copy of it beyond the first that the current matches make (the
-    share of the side x side window around it that is some target's match: a coherent copy uses
-    every centre once). PatchMatch minimises each patch's distance alone, so without it nothing
-    keeps two parts of the hole from copying the same distinctive region."""
-    h, w = lev.hole.shape
-    if penalty <= 0:
-        return np.zeros((h, w), np.float32)
-    used = np.bincount(nnf[:, 0] * w + nnf[:, 1], minlength=h * w).reshape(h, w).astype(np.float32)
-    copies = cv2.boxFilter(used, -1, (side, side), borderType=cv2.BORDER_CONSTANT)
-    scale = penalty * max(float(np.median(dist)), 1e-6)
-    return (np.maximum(copies - 1.0, 0.0) * scale).astype(np.float32)
-
-
 def _weights(dist: np.ndarray, r: int) -> np.ndarray:
     """Wexler's similarity weights exp(-d / 2 sigma^2), sigma^2 the 75th percentile distance."""
     scale = max(float(np.percentile(dist, 75)), 1e-6)
@@ -684,7 +656,7 @@ def _map(pool: ThreadPoolExecutor | None, fn, items) -> None:
         list(pool.map(fn, items))
 
 
-def _search_parallel(pool, lev, nnf, dist, reuse, bands, step, radius, seed, r) -> None:
+def _search_parallel(pool, lev, nnf, dist, bands, step, radius, seed, r) -> None:
     parts = [bands[i :: 2 * _workers()] for i in range(2 * _workers())]
     _map(
         pool,
@@ -698,7 +670,6 @@ def _search_parallel(pool, lev, nnf, dist, reuse, bands, step, radius, seed, r) 
             lev.tx,
             nnf,
             dist,
-            reuse,
             b,
             step,
             radius,
