@@ -17,9 +17,13 @@ Telea; each finer level starts from the coarser one's matches doubled and only r
 14-px search); the finest level's pixels are taken from their own patch's match, not averaged,
 which would blur.
 
-Finally each hole pixel is its surface's diffusion (a membrane from the surface's known pixels),
-blurred at the Gaussian scale ``structure_sigma``, plus the copied pixel's detail: its difference
-from the mean of its own surface's known pixels around it at that scale. A misplaced exemplar
+Finally each hole pixel is the structure, blurred within its surface at the Gaussian scale
+``structure_sigma``, plus the copied pixel's detail: its difference from the mean of its own
+surface's known pixels around it at that scale. The structure is one membrane over the hole from
+all the known pixels, of the colour less a per-surface offset, the offset added back: the offsets
+differ by the colour step where the surfaces meet on the ring, so a wall's colour does not bleed
+onto the ground, yet a smooth gradient that the colours split into two surfaces runs on (a
+membrane per surface, with a free edge where they met, made it two plateaus). A misplaced exemplar
 structure costs twice in error, a diffused one once; detail measured in its own context puts no
 light halo round a dark copy, as the difference from the pasted mosaic's own mean did.
 
@@ -46,7 +50,7 @@ import numpy as np
 
 from ..utils.distance import distance_to
 from ..utils.jit import njit_cached
-from ..utils.membrane import membrane_fill
+from ..utils.membrane import membrane_fill, resize_channels
 from .surfaces import segment
 
 #: Rows per search band (one thread's unit of work); odd iterations shift the bands by half of it.
@@ -397,10 +401,18 @@ def complete(image: np.ndarray, hole: np.ndarray, settings: ExemplarSettings | N
             # A global search at the coarsest level; finer levels refine the matches they inherit.
             radius = max(lev.img.shape[:2]) if li == n_levels - 1 else _REFINE_RADIUS_PATCHES * side
             for it in range(iters):
-                for sweep, step in enumerate((1, -1)):
+                # Below the coarsest level the finest compares colour only (see _with_features)
+                # and sweeps once: its matches are the coarser level's refined within a few
+                # patches, where the texture features (means over a coarsest pixel) hardly differ.
+                # On the 8 DEV cases: the same hole PSNR to 0.01 dB in a third of that level's time.
+                for sweep, step in enumerate((1, -1) if li or n_levels == 1 else (1,)):
                     bands = _bands(lev.ty, (2 * it + sweep) % 2)
                     seed = int(_seed(s.seed, top + li, it, sweep))
                     _search_parallel(pool, lev, nnf, dist, bands, step, radius, seed, r)
+                if it == iters - 1:
+                    # The next level starts from the matches alone, and the result is assembled
+                    # from them: a last vote would paint pixels nothing reads.
+                    break
                 _vote_parallel(pool, lev, nnf, _weights(dist, r), r)
                 _distances_parallel(pool, lev, nnf, dist, r)
     finally:
@@ -408,10 +420,11 @@ def complete(image: np.ndarray, hole: np.ndarray, settings: ExemplarSettings | N
     structure = low = None
     if s.structure_sigma > 0:
         # Large-scale structure from diffusion, texture from the exemplars: a misplaced exemplar
-        # structure costs twice in error, a diffused one once. Each surface is diffused from its own
-        # known pixels (a membrane with a free edge where surfaces meet), so the wall's colour does
-        # not bleed onto the ground, at the finest searched level (at 4K a full-resolution
-        # diffusion alone would cost more than the search). What is copied is each source pixel's
+        # structure costs twice in error, a diffused one once. The colour less each surface's step
+        # is diffused from all known pixels and the steps added back (see the module docstring),
+        # so the wall's colour does not bleed onto the ground and a gradient split into surfaces
+        # runs on, at the finest searched level (at 4K a full-resolution diffusion alone would
+        # cost more than the search). What is copied is each source pixel's
         # detail, its difference from the mean of the known pixels of its surface around it: the
         # mean of the pasted mosaic would put a light halo round a dark copy, and one taken across
         # surfaces would blur the line where they meet.
@@ -419,11 +432,12 @@ def complete(image: np.ndarray, hole: np.ndarray, settings: ExemplarSettings | N
         known = ~holes[0]
         sigma = s.structure_sigma / 2**top
         structure, low = colour.copy(), colour.copy()
+        steps = _surface_steps(colour, known, surfaces, side)
+        diffused = membrane_fill(colour - steps, known) + steps
         for lab in range(int(surfaces.max()) + 1):
             on = surfaces == lab
             if not (on & known).any():
                 continue
-            diffused = membrane_fill(colour, known & on, on)
             structure[on] = _local_mean(diffused, on, sigma)[on]
             low[on] = _local_mean(colour, known & on, sigma)[on]
     _assemble(out, image, hole, prev, nnf, top, structure, low)
@@ -501,10 +515,62 @@ def _assemble(
         out[a:b][part] = np.clip(np.rint(tex[part]), 0, 255).astype(np.uint8)
 
 
+#: Width (px) of the bands either side of where two surfaces meet whose colours give the step, and
+#: their distance from it (a boundary from averaged appearance can be a few pixels off).
+_STEP_BAND_PX = 5
+_STEP_GAP_PX = 3
+
+
+def _band(mask: np.ndarray, inner: int, outer: int) -> np.ndarray:
+    """The pixels more than ``inner`` and at most ``outer`` px (chessboard) from ``mask``."""
+    m = mask.astype(np.uint8)
+    grow = cv2.dilate(m, np.ones((2 * outer + 1,) * 2, np.uint8)) > 0
+    return grow & ~(cv2.dilate(m, np.ones((2 * inner + 1,) * 2, np.uint8)) > 0)
+
+
+def _surface_steps(colour: np.ndarray, known: np.ndarray, surfaces: np.ndarray, ring_px: int) -> np.ndarray:
+    """Per pixel (HxWx3), its surface's colour offset: the offsets differ by the colour step where
+    the surfaces meet on the known ring ``ring_px`` wide around the hole (the mean colour in the
+    bands either side), or, for surfaces that do not meet there, by their mean colours on it
+    (least squares over the pairs, the first surface's offset 0)."""
+    n = int(surfaces.max()) + 1
+    if n == 1:
+        return np.zeros_like(colour)
+    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * ring_px + 1,) * 2)
+    ring = known & (cv2.dilate((~known).astype(np.uint8), disc) > 0)
+    on = [ring & (surfaces == lab) for lab in range(n)]
+    near = [_band(m, _STEP_GAP_PX, _STEP_GAP_PX + _STEP_BAND_PX) for m in on]
+    rows, rhs = [], []
+    for a in range(n):
+        for b in range(a + 1, n):
+            side_a, side_b = on[a] & near[b], on[b] & near[a]
+            if side_a.sum() < ring_px or side_b.sum() < ring_px:
+                side_a, side_b = on[a], on[b]
+            if not side_a.any() or not side_b.any():
+                continue
+            row = np.zeros(n)
+            row[a], row[b] = 1.0, -1.0
+            rows.append(row)
+            rhs.append(colour[side_a].mean(axis=0) - colour[side_b].mean(axis=0))
+    anchor = np.zeros(n)
+    anchor[0] = 1.0
+    offsets = np.linalg.lstsq(np.array([anchor, *rows]), np.array([np.zeros(3), *rhs]), rcond=None)[0]
+    return offsets.astype(np.float32)[surfaces]
+
+
 def _local_mean(values: np.ndarray, weight: np.ndarray, sigma: float) -> np.ndarray:
-    """Gaussian mean (scale ``sigma``) of ``values`` over the pixels where ``weight`` is True."""
-    w = cv2.GaussianBlur(weight.astype(np.float32), (0, 0), sigma)
-    return cv2.GaussianBlur(values * weight[..., None], (0, 0), sigma) / np.maximum(w, 1e-6)[..., None]
+    """Gaussian mean (scale ``sigma``) of ``values`` over the pixels where ``weight`` is True.
+
+    At ``sigma`` >= 2 blurred on the image reduced ``sigma // 2`` times and scaled back: a Gaussian
+    that wide passes nothing the reduction loses (its response at the reduced Nyquist frequency is
+    below 1e-8 at sigma 4 px); the full-size blurs took 42 ms per call at 720p, these 19 ms."""
+    f = max(1, int(sigma // 2))
+    h, w = weight.shape
+    size = (-(-w // f), -(-h // f))
+    num = resize_channels(values * weight[..., None], size, cv2.INTER_AREA)
+    den = cv2.resize(weight.astype(np.float32), size, interpolation=cv2.INTER_AREA)
+    num, den = cv2.GaussianBlur(num, (0, 0), sigma / f), cv2.GaussianBlur(den, (0, 0), sigma / f)
+    return resize_channels(num / np.maximum(den, 1e-6)[..., None], (w, h), cv2.INTER_LINEAR)
 
 
 def _has_patch(hole: np.ndarray, side: int) -> bool:
@@ -514,7 +580,8 @@ def _has_patch(hole: np.ndarray, side: int) -> bool:
 
 def _with_features(colour: np.ndarray, holes: list[np.ndarray]) -> list[np.ndarray]:
     """Each level's image with the texture features appended (scaled by ``_FEATURE_WEIGHT``),
-    downsampled like the colour."""
+    downsampled like the colour; the finest level, when coarser ones exist, has the colour only
+    (see :func:`complete`)."""
     grey = cv2.cvtColor(colour, cv2.COLOR_RGB2GRAY)
     gx = np.abs(cv2.Sobel(grey, cv2.CV_32F, 1, 0, ksize=1))
     gy = np.abs(cv2.Sobel(grey, cv2.CV_32F, 0, 1, ksize=1))
@@ -525,8 +592,11 @@ def _with_features(colour: np.ndarray, holes: list[np.ndarray]) -> list[np.ndarr
     num = cv2.boxFilter(np.dstack([gx * known, gy * known]), -1, (size, size), normalize=False)
     den = cv2.boxFilter(known, -1, (size, size), normalize=False)
     feats = num / np.maximum(den, 1e-6)[..., None] * _FEATURE_WEIGHT
-    out = [np.ascontiguousarray(np.dstack([colour, feats]), dtype=np.float32)]
-    for li in range(1, n_levels):
+    if n_levels == 1:
+        return [np.ascontiguousarray(np.dstack([colour, feats]), dtype=np.float32)]
+    half = [_downsample(a, holes[0])[0] for a in (colour, feats.astype(np.float32))]
+    out = [np.ascontiguousarray(colour, dtype=np.float32), np.ascontiguousarray(np.dstack(half))]
+    for li in range(2, n_levels):
         out.append(_downsample(out[-1], holes[li - 1])[0])
     return out
 
