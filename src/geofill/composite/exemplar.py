@@ -274,18 +274,20 @@ class _Level:
     def make(cls, img: np.ndarray, hole: np.ndarray, r: int, surfaces: np.ndarray) -> _Level:
         h, w = hole.shape
         kernel = np.ones((2 * r + 1, 2 * r + 1), np.uint8)
-        valid = cv2.erode((~hole).astype(np.uint8), kernel, borderType=cv2.BORDER_CONSTANT, borderValue=0) > 0
+        slab = np.ascontiguousarray(cv2.resize(surfaces, (w, h), interpolation=cv2.INTER_NEAREST))
+        # A source patch lies wholly on known pixels of some surface.
+        usable = (~hole & (slab >= 0)).astype(np.uint8)
+        valid = cv2.erode(usable, kernel, borderType=cv2.BORDER_CONSTANT, borderValue=0) > 0
         touch = cv2.dilate(hole.astype(np.uint8), kernel) > 0
         ty, tx = np.nonzero(touch)
         tid = np.full((h, w), -1, np.int32)
         tid[ty, tx] = np.arange(ty.size, dtype=np.int32)
         hy, hx = np.nonzero(hole)
-        slab = np.ascontiguousarray(cv2.resize(surfaces, (w, h), interpolation=cv2.INTER_NEAREST))
         tlab = slab[ty, tx]
         sources = np.bincount(slab[valid], minlength=int(slab.max()) + 1)
-        targets = np.bincount(tlab, minlength=sources.size)
+        targets = np.bincount(tlab[tlab >= 0], minlength=sources.size)
         thin = sources < np.maximum(_MIN_SURFACE_SOURCES * targets, (2 * r + 1) ** 2)
-        tlab = np.where(thin[tlab] | (sources.size == 1), -1, tlab).astype(np.int32)
+        tlab = np.where((tlab < 0) | thin[np.maximum(tlab, 0)] | (sources.size == 1), -1, tlab).astype(np.int32)
         return cls(img, hole, valid, ty.astype(np.int32), tx.astype(np.int32), tid, hy, hx, slab, tlab)
 
 
@@ -306,9 +308,13 @@ def _block_sum(a: np.ndarray) -> np.ndarray:
     return a[0::2, 0::2] + a[1::2, 0::2] + a[0::2, 1::2] + a[1::2, 1::2]
 
 
-def complete(image: np.ndarray, hole: np.ndarray, settings: ExemplarSettings | None = None) -> np.ndarray:
+def complete(
+    image: np.ndarray, hole: np.ndarray, settings: ExemplarSettings | None = None, surfaces: np.ndarray | None = None
+) -> np.ndarray:
     """``image`` (HxWx3 uint8) with ``hole`` (HxW bool) painted from patches of the rest of the
-    image, which is returned unchanged. ``settings.patch_radius`` shrinks (to 1) where no whole
+    image, which is returned unchanged. ``surfaces`` (HxW int32, every pixel's surface; negative:
+    on none, never copied from): given by the caller (:mod:`geofill.composite.rectify`, from the
+    scene's planes), else from appearance (:func:`geofill.composite.surfaces.segment`). ``settings.patch_radius`` shrinks (to 1) where no whole
     patch of that size is known; a hole at most 2 px deep, or one leaving no 3x3 patch known, is
     diffused (Telea).
 
@@ -347,23 +353,29 @@ def complete(image: np.ndarray, hole: np.ndarray, settings: ExemplarSettings | N
     depth = float(distance_to(~holes[top]).max())
     imgs = [_downsample_strips(image, hole, top)]
     holes = holes[top:]
+    barred = [np.zeros_like(holes[0]) if surfaces is None else _at(surfaces, holes[0].shape) < 0]
     # Coarser levels: halve until the hole is about a patch deep, keeping known patches to copy.
     while (
         depth / 2 ** (len(imgs) - 1) > _COARSE_DEPTH_PATCHES * side
         or max(hole.shape) >> (top + len(imgs) - 1) > _COARSE_LONG_SIDE
     ) and min(hole.shape) >> (top + len(imgs)) >= _MIN_SIDE_PATCHES * side:
         small, small_hole = _downsample(imgs[-1], holes[-1])
-        if not _has_patch(small_hole, side):
+        small_barred = _downsample_hole(barred[-1])
+        if not _has_patch(small_hole | small_barred, side):
             break
         imgs.append(small)
         holes.append(small_hole)
+        barred.append(small_barred)
 
     # Texture features (Newson et al. 2017): mean absolute x and y derivatives over a window as wide
     # as a coarsest-level pixel, computed at the finest searched level and carried down the pyramid,
     # so that coarse matching, where the image itself is smooth, still tells textured from flat.
     # Each hole pixel is copied from its own surface (see surfaces.py), and its structure diffused
     # from that surface's ring only.
-    surfaces = segment(imgs[0], holes[0], side)
+    if surfaces is None:
+        surfaces = segment(imgs[0], holes[0], side)
+    else:
+        surfaces = _at(surfaces, holes[0].shape)
     imgs = _with_features(imgs[0], holes)
 
     # Coarsest level: diffusion for the structure.
@@ -505,6 +517,11 @@ def _local_mean(values: np.ndarray, weight: np.ndarray, sigma: float) -> np.ndar
     """Gaussian mean (scale ``sigma``) of ``values`` over the pixels where ``weight`` is True."""
     w = cv2.GaussianBlur(weight.astype(np.float32), (0, 0), sigma)
     return cv2.GaussianBlur(values * weight[..., None], (0, 0), sigma) / np.maximum(w, 1e-6)[..., None]
+
+
+def _at(surfaces: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """``surfaces`` (int32 labels) at ``shape``, nearest neighbour."""
+    return cv2.resize(surfaces.astype(np.int32), shape[::-1], interpolation=cv2.INTER_NEAREST)
 
 
 def _has_patch(hole: np.ndarray, side: int) -> bool:

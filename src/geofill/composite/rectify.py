@@ -1,0 +1,138 @@
+"""Each planar surface painted in its own rectified (fronto-parallel) coordinates.
+
+Seen in perspective, a tiled floor's tiles shrink and turn towards the vanishing point: a patch
+copied from nearer the camera into the hole carries tiles too large and turned the wrong way. So
+each plane around the hole (:mod:`geofill.composite.planes`, from the pipeline's depth) is viewed
+head on first: the image is warped by the homography of a camera turned to face the plane
+(``K' R K^-1``, ``R`` taking the plane's normal to the optical axis, ``K'`` scaled so the hole keeps
+its area), where every tile has one size and one direction; the plane's part of the hole is painted
+there from the plane's own known pixels only (:func:`geofill.composite.exemplar.complete`, the
+other surfaces a separate surface it never copies from), and warped back. What lies on no plane is
+painted in the image as before, from its own appearance surface.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from .exemplar import ExemplarSettings, complete
+from .planes import Plane, SceneDepth, plane_surfaces
+
+#: A plane's part of the hole is painted unrectified when its rectified bounding box is longer than
+#: this many times its bounding box in the image (a plane seen at a grazing angle, near its
+#: horizon, is stretched without bound there).
+_MAX_STRETCH = 4.0
+#: Most a source pixel may be enlarged (linear) in the rectified coordinates and still be copied.
+_MAX_ENLARGE = 1.5
+#: Context kept around the hole's rectified bounding box, as a fraction of its longer side (at least
+#: 32 px), as the exemplar painter keeps around the hole (see inpaint._context).
+_CONTEXT = 1.0
+
+
+def paint(
+    image: np.ndarray, hole: np.ndarray, settings: ExemplarSettings | None, scene: SceneDepth | None
+) -> np.ndarray:
+    """``image`` (HxWx3 uint8) with ``hole`` (HxW bool) painted, each plane that ``scene``'s depth
+    shows around it in its own rectified coordinates, the rest by
+    :func:`geofill.composite.exemplar.complete` from its appearance surface. Without ``scene``, or
+    without a plane on the ring, this is ``complete`` alone."""
+    s = settings or ExemplarSettings()
+    if scene is None or not hole.any():
+        return complete(image, hole, s)
+    surfaces = plane_surfaces(image.astype(np.float32) / 255.0, hole, scene, 2 * s.patch_radius + 1)
+    if surfaces is None:
+        return complete(image, hole, s)
+    out = image.copy()
+    left = hole.copy()
+    for i, plane in enumerate(surfaces.planes):
+        part = hole & (surfaces.labels == i)
+        if not part.any():
+            continue
+        filled = fill_rectified(image, hole, surfaces.labels == i, plane, scene.K, s)
+        if filled is not None:
+            np.copyto(out, filled, where=part[..., None])
+            left &= ~part
+    if left.any():
+        out = complete(out, left, s, surfaces=surfaces.labels)
+    return out
+
+
+def rectifying_homography(plane: Plane, K: np.ndarray) -> np.ndarray:
+    """``R K^-1`` (3x3): image pixels to the normalised image of a camera at the same centre turned
+    to look along the plane's normal (head on: there the plane is seen up to a similarity)."""
+    z = np.array([0.0, 0.0, 1.0])
+    axis = np.cross(plane.normal, z)
+    angle = np.arctan2(np.linalg.norm(axis), float(plane.normal @ z))
+    if np.linalg.norm(axis) < 1e-12:
+        R = np.eye(3)
+    else:
+        R = cv2.Rodrigues(axis / np.linalg.norm(axis) * angle)[0]
+    return R @ np.linalg.inv(K)
+
+
+def fill_rectified(
+    image: np.ndarray, hole: np.ndarray, on: np.ndarray, plane: Plane, K: np.ndarray, settings: ExemplarSettings
+) -> np.ndarray | None:
+    """``image`` (HxWx3 uint8) with the plane's part of the hole (``hole & on``) painted in the
+    plane's rectified coordinates from its known pixels (``on & ~hole``) only, warped back (valid
+    at those hole pixels only); None where the part is too stretched to rectify (_MAX_STRETCH)."""
+    part = hole & on
+    ys, xs = np.nonzero(part)
+    H0 = rectifying_homography(plane, K)
+    p = H0 @ np.stack([xs, ys, np.ones_like(xs)]).astype(np.float64)
+    if (p[2] <= 0).any():
+        return None
+    uv = p[:2] / p[2]
+    # No hole pixel is shrunk: where the plane is nearest (its texture largest) one rectified pixel
+    # is one image pixel, and farther parts are enlarged (a homography's area scale at pixel x is
+    # det(H) / w(x)^3). Shrinking the near part would leave only blurred texture to copy.
+    scale = float(np.sqrt((p[2] ** 3).max() / abs(np.linalg.det(H0))))
+    lo, hi = uv.min(1) * scale, uv.max(1) * scale
+    extent = float((hi - lo).max())
+    if extent > _MAX_STRETCH * max(xs.max() - xs.min() + 1, ys.max() - ys.min() + 1):
+        return None
+    pad = max(32.0, _CONTEXT * extent)
+    origin = lo - pad
+    size = (int(np.ceil(hi[0] + pad - origin[0])) + 1, int(np.ceil(hi[1] + pad - origin[1])) + 1)
+    Hs = np.array([[scale, 0, -origin[0]], [0, scale, -origin[1]], [0, 0, 1]]) @ H0
+
+    def warp(a: np.ndarray, flags: int) -> np.ndarray:
+        return cv2.warpPerspective(a, Hs, size, flags=flags, borderMode=cv2.BORDER_CONSTANT)
+
+    canvas = warp(image, cv2.INTER_LINEAR)
+    # The rectified hole: every canvas pixel the part's pixels reach (a pixel either side, so the
+    # bilinear warp back reads painted pixels only).
+    target = cv2.dilate((warp(part.astype(np.uint8) * 255, cv2.INTER_LINEAR) > 0).astype(np.uint8), np.ones((3, 3)))
+    target = target > 0
+    # Sources: canvas pixels wholly from the plane's known pixels (a linear warp of the mask at 255
+    # there); everything else (another surface, beyond the image) is on no surface, never copied.
+    # Parts of the plane enlarged more than _MAX_ENLARGE are not copied from: they are blurred, and
+    # the search favours blurred sources (they match the diffused start of the hole best).
+    ry, rx = np.nonzero(on & ~hole)
+    w = H0[2, 0] * rx + H0[2, 1] * ry + H0[2, 2]
+    sharp = np.zeros_like(on)
+    sharp[ry, rx] = scale**2 * abs(np.linalg.det(H0)) / np.maximum(w, 1e-12) ** 3 <= _MAX_ENLARGE**2
+    source = warp(sharp.astype(np.uint8) * 255, cv2.INTER_LINEAR) == 255
+    if not source.any():
+        return None
+    labels = np.where(source | target, 0, -1).astype(np.int32)
+    painted = complete(_nearest_source(canvas, source), target, settings, surfaces=labels)
+    return cv2.warpPerspective(
+        painted, Hs, image.shape[1::-1], flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REPLICATE
+    )
+
+
+def _nearest_source(canvas: np.ndarray, source: np.ndarray) -> np.ndarray:
+    """``canvas`` with every pixel outside ``source`` the colour of its nearest source pixel: the
+    patches at the plane's edge, and the coarse levels' averages, then see the plane, not black
+    beyond the image or another surface (which would be copied in with them)."""
+    _, nearest = cv2.distanceTransformWithLabels(
+        (~source).astype(np.uint8), cv2.DIST_L2, 5, labelType=cv2.DIST_LABEL_PIXEL
+    )
+    ys, xs = np.nonzero(source)
+    lookup = np.zeros((int(nearest.max()) + 1, 3), canvas.dtype)
+    lookup[nearest[ys, xs]] = canvas[ys, xs]
+    out = canvas.copy()
+    out[~source] = lookup[nearest[~source]]
+    return out
