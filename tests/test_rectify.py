@@ -183,7 +183,7 @@ def test_wall_and_floor_are_painted_from_themselves_up_to_their_meeting_line():
 def test_without_depth_or_planes_the_painter_is_unchanged():
     """No depth, or depth that shows no plane on the ring (a random field), paints the same bytes
     as the painter alone."""
-    _, blank, hole, _, scene = _case()
+    _, blank, hole, _, _ = _case()
     alone = complete(blank, hole)
     np.testing.assert_array_equal(paint(blank, hole, None, None), alone)
     noise = np.random.default_rng(0).uniform(1.0, 50.0, hole.shape).astype(np.float32)

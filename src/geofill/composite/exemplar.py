@@ -287,7 +287,9 @@ class _Level:
         sources = np.bincount(slab[valid], minlength=int(slab.max()) + 1)
         targets = np.bincount(tlab[tlab >= 0], minlength=sources.size)
         thin = sources < np.maximum(_MIN_SURFACE_SOURCES * targets, (2 * r + 1) ** 2)
-        tlab = np.where((tlab < 0) | thin[np.maximum(tlab, 0)] | (sources.size == 1), -1, tlab).astype(np.int32)
+        tlab = np.where((tlab < 0) | thin[np.maximum(tlab, 0)] | (sources.size == 1), -1, tlab).astype(
+            np.int32
+        )
         return cls(img, hole, valid, ty.astype(np.int32), tx.astype(np.int32), tid, hy, hx, slab, tlab)
 
 
@@ -309,14 +311,17 @@ def _block_sum(a: np.ndarray) -> np.ndarray:
 
 
 def complete(
-    image: np.ndarray, hole: np.ndarray, settings: ExemplarSettings | None = None, surfaces: np.ndarray | None = None
+    image: np.ndarray,
+    hole: np.ndarray,
+    settings: ExemplarSettings | None = None,
+    surfaces: np.ndarray | None = None,
 ) -> np.ndarray:
     """``image`` (HxWx3 uint8) with ``hole`` (HxW bool) painted from patches of the rest of the
-    image, which is returned unchanged. ``surfaces`` (HxW int32, every pixel's surface; negative:
-    on none, never copied from): given by the caller (:mod:`geofill.composite.rectify`, from the
-    scene's planes), else from appearance (:func:`geofill.composite.surfaces.segment`). ``settings.patch_radius`` shrinks (to 1) where no whole
+    image, which is returned unchanged. ``settings.patch_radius`` shrinks (to 1) where no whole
     patch of that size is known; a hole at most 2 px deep, or one leaving no 3x3 patch known, is
-    diffused (Telea).
+    diffused (Telea). ``surfaces`` (HxW int32, every pixel's surface; negative: on none, never
+    copied from): given by the caller (:mod:`geofill.composite.rectify`, from the scene's planes),
+    else from appearance (:func:`geofill.composite.surfaces.segment`).
 
     Memory is bounded by the searched levels (at most ``_SEARCH_LONG_SIDE`` px long): the levels
     above them are never held whole; the full-resolution result is assembled in row strips."""

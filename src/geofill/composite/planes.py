@@ -77,7 +77,9 @@ def rays(K: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     return np.dstack([xs, ys, np.ones_like(xs)]) @ np.linalg.inv(K).T
 
 
-def plane_surfaces(image: np.ndarray, hole: np.ndarray, scene: SceneDepth, patch_px: int) -> PlaneSurfaces | None:
+def plane_surfaces(
+    image: np.ndarray, hole: np.ndarray, scene: SceneDepth, patch_px: int
+) -> PlaneSurfaces | None:
     """The surfaces of ``image`` (HxWx3 float32 RGB in [0, 1]) around ``hole`` (HxW bool) from
     ``scene``'s depth, or None when no plane is found on the ring (then the appearance surfaces
     stand alone). ``patch_px``: the painter's patch width."""
@@ -94,7 +96,9 @@ def plane_surfaces(image: np.ndarray, hole: np.ndarray, scene: SceneDepth, patch
     # Relative distance of every pixel with depth to every plane.
     resid = np.stack([np.abs(points @ p.normal - p.offset) / depth for p in planes], axis=-1)
     best = np.argmin(np.nan_to_num(resid, nan=np.inf), axis=-1)
-    on_plane = known & (depth > 0) & (np.take_along_axis(resid, best[..., None], -1)[..., 0] <= 2 * _PLANE_TOL)
+    on_plane = (
+        known & (depth > 0) & (np.take_along_axis(resid, best[..., None], -1)[..., 0] <= 2 * _PLANE_TOL)
+    )
     # Pixels on no plane keep their appearance surface; label noise on the planes is smoothed the
     # way segment() smooths its own.
     labels = np.where(on_plane, best, n + segment(image, hole, patch_px)).astype(np.int32)
@@ -165,7 +169,9 @@ def meeting_line(a: Plane, b: Plane, K: np.ndarray) -> np.ndarray:
     return np.linalg.inv(K).T @ (a.offset * b.normal - b.offset * a.normal)
 
 
-def _split_by_meeting_lines(labels: np.ndarray, hole: np.ndarray, planes: list[Plane], ray: np.ndarray) -> None:
+def _split_by_meeting_lines(
+    labels: np.ndarray, hole: np.ndarray, planes: list[Plane], ray: np.ndarray
+) -> None:
     """In place: the hole pixels that went to planes are shared between them by the planes' meeting
     lines, each plane keeping the side where most of its known pixels are, and only rays that
     meet it in front of the camera."""

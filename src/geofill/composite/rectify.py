@@ -17,7 +17,9 @@ import cv2
 import numpy as np
 
 from .exemplar import ExemplarSettings, complete
+from .lines import continue_lines
 from .planes import Plane, SceneDepth, plane_surfaces
+from .surfaces import segment
 
 #: A plane's part of the hole is painted unrectified when its rectified bounding box is longer than
 #: this many times its bounding box in the image (a plane seen at a grazing angle, near its
@@ -35,14 +37,27 @@ def paint(
 ) -> np.ndarray:
     """``image`` (HxWx3 uint8) with ``hole`` (HxW bool) painted, each plane that ``scene``'s depth
     shows around it in its own rectified coordinates, the rest by
-    :func:`geofill.composite.exemplar.complete` from its appearance surface. Without ``scene``, or
-    without a plane on the ring, this is ``complete`` alone."""
+    :func:`geofill.composite.exemplar.complete` from its appearance surface, after the straight
+    edges that cross the hole are drawn across it (:mod:`geofill.composite.lines`). Without
+    ``scene``, or without a plane on the ring, the rest is ``complete`` alone."""
     s = settings or ExemplarSettings()
-    if scene is None or not hole.any():
-        return complete(image, hole, s)
-    surfaces = plane_surfaces(image.astype(np.float32) / 255.0, hole, scene, 2 * s.patch_radius + 1)
+    side = 2 * s.patch_radius + 1
+    if not hole.any():
+        return image.copy()
+    # Straight edges across the hole first: the texture is painted around them. The surfaces are
+    # found as if they were not drawn (a drawn edge is no surface of its own).
+    image = image.copy()
+    drawn = continue_lines(image, hole, side)
+    colour = image.astype(np.float32) / 255.0
+    surfaces = None if scene is None else plane_surfaces(colour, hole, scene, side)
     if surfaces is None:
-        return complete(image, hole, s)
+        labels = segment(colour, hole, side) if drawn.any() else None
+        if labels is not None:
+            # The edges drawn are a surface of their own: the structure diffused around them does
+            # not take their colour (a dark edge would cast a dark shadow).
+            labels[drawn] = labels.max() + 1
+        return complete(image, hole & ~drawn, s, surfaces=labels)
+    hole = hole & ~drawn
     out = image.copy()
     left = hole.copy()
     for i, plane in enumerate(surfaces.planes):
@@ -72,7 +87,12 @@ def rectifying_homography(plane: Plane, K: np.ndarray) -> np.ndarray:
 
 
 def fill_rectified(
-    image: np.ndarray, hole: np.ndarray, on: np.ndarray, plane: Plane, K: np.ndarray, settings: ExemplarSettings
+    image: np.ndarray,
+    hole: np.ndarray,
+    on: np.ndarray,
+    plane: Plane,
+    K: np.ndarray,
+    settings: ExemplarSettings,
 ) -> np.ndarray | None:
     """``image`` (HxWx3 uint8) with the plane's part of the hole (``hole & on``) painted in the
     plane's rectified coordinates from its known pixels (``on & ~hole``) only, warped back (valid
@@ -103,7 +123,9 @@ def fill_rectified(
     canvas = warp(image, cv2.INTER_LINEAR)
     # The rectified hole: every canvas pixel the part's pixels reach (a pixel either side, so the
     # bilinear warp back reads painted pixels only).
-    target = cv2.dilate((warp(part.astype(np.uint8) * 255, cv2.INTER_LINEAR) > 0).astype(np.uint8), np.ones((3, 3)))
+    target = cv2.dilate(
+        (warp(part.astype(np.uint8) * 255, cv2.INTER_LINEAR) > 0).astype(np.uint8), np.ones((3, 3))
+    )
     target = target > 0
     # Sources: canvas pixels wholly from the plane's known pixels (a linear warp of the mask at 255
     # there); everything else (another surface, beyond the image) is on no surface, never copied.
@@ -119,7 +141,11 @@ def fill_rectified(
     labels = np.where(source | target, 0, -1).astype(np.int32)
     painted = complete(_nearest_source(canvas, source), target, settings, surfaces=labels)
     return cv2.warpPerspective(
-        painted, Hs, image.shape[1::-1], flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REPLICATE
+        painted,
+        Hs,
+        image.shape[1::-1],
+        flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+        borderMode=cv2.BORDER_REPLICATE,
     )
 
 
