@@ -31,6 +31,8 @@ _MAX_PLANES = 3
 #: Points the planes are fitted on, and plane hypotheses (three points each) tried per plane.
 _FIT_POINTS = 4000
 _TRIALS = 300
+#: Longest side (px) the surfaces are found at.
+_LONG_SIDE = 1400
 #: A ray grazing a plane (cosine to its normal below this) is never put on it: the plane would be
 #: stretched without bound there.
 _MIN_COS = 0.05
@@ -82,7 +84,32 @@ def plane_surfaces(
 ) -> PlaneSurfaces | None:
     """The surfaces of ``image`` (HxWx3 float32 RGB in [0, 1]) around ``hole`` (HxW bool) from
     ``scene``'s depth, or None when no plane is found on the ring (then the appearance surfaces
-    stand alone). ``patch_px``: the painter's patch width."""
+    stand alone). ``patch_px``: the painter's patch width. Above _LONG_SIDE px the surfaces are
+    found on the image reduced to that and scaled back (per-pixel rays and distances to every
+    plane cost a gigabyte at 4K)."""
+    f = max(1, -(-max(hole.shape) // _LONG_SIDE))
+    if f == 1:
+        return _plane_surfaces(image, hole, scene, patch_px)
+    h, w = hole.shape
+    size = (-(-w // f), -(-h // f))
+    small_hole = cv2.resize(hole.astype(np.uint8), size, interpolation=cv2.INTER_AREA) > 0
+    K = np.diag([1.0 / f, 1.0 / f, 1.0]) @ scene.K
+    K[:2, 2] += 0.5 / f - 0.5  # pixel centres: x_small = (x + 0.5) / f - 0.5
+    small = _plane_surfaces(
+        cv2.resize(image, size, interpolation=cv2.INTER_AREA),
+        small_hole,
+        SceneDepth(cv2.resize(scene.depth, size, interpolation=cv2.INTER_NEAREST), K),
+        max(3, patch_px // f),
+    )
+    if small is None:
+        return None
+    labels = cv2.resize(small.labels, (w, h), interpolation=cv2.INTER_NEAREST)
+    return PlaneSurfaces(labels, small.planes)
+
+
+def _plane_surfaces(
+    image: np.ndarray, hole: np.ndarray, scene: SceneDepth, patch_px: int
+) -> PlaneSurfaces | None:
     known = ~hole
     ring = known & (_distance_from(hole) <= _ring_px(hole, patch_px))
     depth = np.where(np.isfinite(scene.depth), scene.depth, np.nan).astype(np.float64)

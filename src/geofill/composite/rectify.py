@@ -27,6 +27,8 @@ from .surfaces import segment
 _MAX_STRETCH = 4.0
 #: Most a source pixel may be enlarged (linear) in the rectified coordinates and still be copied.
 _MAX_ENLARGE = 1.5
+#: Longest rectified canvas, as a multiple of the image's long side.
+_MAX_CANVAS = 1.5
 #: Context kept around the hole's rectified bounding box, as a fraction of its longer side (at least
 #: 32 px), as the exemplar painter keeps around the hole (see inpaint._context).
 _CONTEXT = 1.0
@@ -108,6 +110,9 @@ def fill_rectified(
     # is one image pixel, and farther parts are enlarged (a homography's area scale at pixel x is
     # det(H) / w(x)^3). Shrinking the near part would leave only blurred texture to copy.
     scale = float(np.sqrt((p[2] ** 3).max() / abs(np.linalg.det(H0))))
+    # ... unless the canvas would then be longer than _MAX_CANVAS times the image: memory and time.
+    span = float((uv.max(1) - uv.min(1)).max())
+    scale = min(scale, _MAX_CANVAS * max(image.shape[:2]) / ((1.0 + 2.0 * _CONTEXT) * max(span, 1e-12)))
     lo, hi = uv.min(1) * scale, uv.max(1) * scale
     extent = float((hi - lo).max())
     if extent > _MAX_STRETCH * max(xs.max() - xs.min() + 1, ys.max() - ys.min() + 1):
