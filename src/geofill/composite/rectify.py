@@ -118,8 +118,13 @@ def fill_rectified(
     if extent > _MAX_STRETCH * max(xs.max() - xs.min() + 1, ys.max() - ys.min() + 1):
         return None
     pad = max(32.0, _CONTEXT * extent)
-    origin = lo - pad
-    size = (int(np.ceil(hi[0] + pad - origin[0])) + 1, int(np.ceil(hi[1] + pad - origin[1])) + 1)
+    # No wider than the plane's pixels reach in the image: beyond them the canvas would be empty.
+    oy, ox = np.nonzero(on)
+    q = H0 @ np.stack([ox, oy, np.ones_like(ox)]).astype(np.float64)
+    q = q[:2, q[2] > 0] / q[2, q[2] > 0] * scale
+    origin = np.maximum(lo - pad, q.min(1) - 1.0)
+    end = np.minimum(hi + pad, q.max(1) + 1.0)
+    size = (int(np.ceil(end[0] - origin[0])) + 1, int(np.ceil(end[1] - origin[1])) + 1)
     Hs = np.array([[scale, 0, -origin[0]], [0, scale, -origin[1]], [0, 0, 1]]) @ H0
 
     def warp(a: np.ndarray, flags: int) -> np.ndarray:
