@@ -23,7 +23,8 @@ _ANGLE_DEG = 2.0
 _OFFSET_PX = 1.5
 #: Half the width (px) of the band drawn across the hole along an edge.
 _HALF_WIDTH = 2
-#: Least mean step (0-255) across an edge for it to be continued.
+#: Least step across an edge (summed over RGB, between neighbouring offsets of its profile) for it
+#: to be continued.
 _MIN_CONTRAST = 20.0
 
 

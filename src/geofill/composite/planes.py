@@ -126,10 +126,21 @@ def _plane_surfaces(
     on_plane = (
         known & (depth > 0) & (np.take_along_axis(resid, best[..., None], -1)[..., 0] <= 2 * _PLANE_TOL)
     )
-    # Pixels on no plane keep their appearance surface; label noise on the planes is smoothed the
-    # way segment() smooths its own.
-    labels = np.where(on_plane, best, n + segment(image, hole, patch_px)).astype(np.int32)
-    labels = cv2.medianBlur(labels.astype(np.uint8), 5).astype(np.int32)
+    # Pixels on no plane (without depth beyond the references' renders, or off every plane: an
+    # apple on the table, a bush) keep their appearance surface, unless most of that surface's
+    # pixels with depth lie on one plane: then they are that plane's, as the painter without depth
+    # would have put them on one surface with it. Label noise is smoothed as segment() does.
+    look = segment(image, hole, patch_px)
+    labels = np.where(on_plane, best, n + look).astype(np.int32)
+    measured = known & (depth > 0)
+    off = known & ~on_plane
+    for a in np.unique(look[off]):
+        votes = np.bincount(best[on_plane & (look == a)], minlength=n)
+        if votes.max(initial=0) >= 0.5 * np.count_nonzero(measured & (look == a)) > 0:
+            labels[off & (look == a)] = int(np.argmax(votes))
+    # (Not where the 5x5 median reads the hole: its pixels' labels are no one's yet.)
+    smooth = cv2.medianBlur(labels.astype(np.uint8), 5).astype(np.int32)
+    labels = np.where(cv2.dilate(hole.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0, labels, smooth)
     labels[hole] = 0
     extend(labels, hole)
     _split_by_meeting_lines(labels, hole, planes, ray)
