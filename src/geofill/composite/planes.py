@@ -4,12 +4,13 @@ plane (a wall, the ground), where each plane runs inside the hole, and where two
 A plane is fitted to the known ring's pixels with depth (back-projected through the target's
 intrinsics) by sequential RANSAC; each known pixel takes the plane it lies on, the pixels on none
 (a bush, a car, or no depth at all) the painter's appearance surfaces
-(:func:`geofill.composite.surfaces.segment`). Inside the hole a pixel takes the surface of its
-nearest known pixel, and hole pixels that go to planes are shared between them along their 3D
-meeting line projected into the image: for planes ``n1.X = d1`` and ``n2.X = d2`` (camera frame) the
-rays meeting both at once are those with ``(d1 n2 - d2 n1).K^-1 x = 0``, a straight image line,
-and each plane keeps the side its own known pixels are on. So the wall's foot continues where the
-geometry puts it, not where the colours happen to change.
+(:func:`geofill.composite.surfaces.segment`), unless that appearance surface lies mostly on one
+plane. Inside the hole a pixel takes the surface of its nearest known pixel, and where two planes
+meet on the ring around the hole, the hole pixels that went to either are shared between them
+along their 3D meeting line projected into the image: for planes ``n1.X = d1`` and ``n2.X = d2``
+(camera frame) the rays meeting both at once are those with ``(d1 n2 - d2 n1).K^-1 x = 0``, a
+straight image line, and each plane keeps the side its own ring pixels are on. So the wall's foot
+continues where the geometry puts it, not where the colours happen to change.
 """
 
 from __future__ import annotations
@@ -31,6 +32,8 @@ _MAX_PLANES = 3
 #: Points the planes are fitted on, and plane hypotheses (three points each) tried per plane.
 _FIT_POINTS = 4000
 _TRIALS = 300
+#: Ring pixels this close (px) to two planes' meeting line show where they meet.
+_MEET_PX = 3.0
 #: Longest side (px) the surfaces are found at.
 _LONG_SIDE = 1400
 #: A ray grazing a plane (cosine to its normal below this) is never put on it: the plane would be
@@ -143,7 +146,7 @@ def _plane_surfaces(
     labels = np.where(cv2.dilate(hole.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0, labels, smooth)
     labels[hole] = 0
     extend(labels, hole)
-    _split_by_meeting_lines(labels, hole, planes, ray)
+    _split_by_meeting_lines(labels, hole, ring, planes, scene.K, patch_px)
     return PlaneSurfaces(labels, tuple(planes))
 
 
@@ -208,30 +211,31 @@ def meeting_line(a: Plane, b: Plane, K: np.ndarray) -> np.ndarray:
 
 
 def _split_by_meeting_lines(
-    labels: np.ndarray, hole: np.ndarray, planes: list[Plane], ray: np.ndarray
+    labels: np.ndarray, hole: np.ndarray, ring: np.ndarray, planes: list[Plane], K: np.ndarray, patch_px: int
 ) -> None:
-    """In place: the hole pixels that went to planes are shared between them by the planes' meeting
-    lines, each plane keeping the side where most of its known pixels are, and only rays that
-    meet it in front of the camera."""
-    n = len(planes)
-    planar = hole & (labels < n)
-    if n < 2 or not planar.any():
-        return
-    ys, xs = np.nonzero(planar)
-    r = ray[ys, xs]
-    allowed = np.stack([r @ p.normal > _MIN_COS * np.linalg.norm(r, axis=1) for p in planes], axis=1)
-    known = ~hole
-    for i in range(n):
-        for j in range(n):
-            if i == j:
+    """In place: where two planes meet on the ``ring`` (each has at least a patch width of ring
+    pixels within _MEET_PX of their meeting line), the hole pixels that went to either are shared
+    between them by that line, each keeping the side where its ring pixels next to the line are
+    (and only rays that meet it in front of the camera). Planes that meet only behind something
+    else (a wall and the ground behind a parked car) do not take each other's hole pixels: the
+    nearest known pixel decides there, as without depth."""
+    h, w = labels.shape
+    ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)
+    ray = rays(K, (h, w))
+    for i in range(len(planes)):
+        for j in range(i + 1, len(planes)):
+            line = meeting_line(planes[i], planes[j], K)
+            # Signed distance (px) to the line; > 0 where the ray meets plane j nearer than i.
+            side = (line[0] * xs + line[1] * ys + line[2]) / np.hypot(line[0], line[1])
+            near = ring & (np.abs(side) <= _MEET_PX)
+            a, b = near & (labels == i), near & (labels == j)
+            if min(np.count_nonzero(a), np.count_nonzero(b)) < patch_px:
                 continue
-            # (d_i n_j - d_j n_i) . r is > 0 exactly where the ray meets plane j nearer than i.
-            w = planes[i].offset * planes[j].normal - planes[j].offset * planes[i].normal
-            mine = known & (labels == i)
-            if not mine.any():
-                allowed[:, i] = False
-                continue
-            side = np.sign(np.median(ray[mine] @ w))
-            allowed[:, i] &= np.sign(r @ w) == side
-    keep = allowed.any(axis=1)
-    labels[ys[keep], xs[keep]] = np.argmax(allowed[keep], axis=1)
+            side_i = np.sign(np.median(side[a]))
+            pair = hole & ((labels == i) | (labels == j))
+            r = ray[pair]
+            length = np.linalg.norm(r, axis=1)
+            faces_i = r @ planes[i].normal > _MIN_COS * length
+            faces_j = r @ planes[j].normal > _MIN_COS * length
+            on_i = (np.sign(side[pair]) == side_i) & faces_i
+            labels[pair] = np.where(on_i | ~faces_j, i, j)
