@@ -440,7 +440,9 @@ def complete(
             on = surfaces == lab
             if not (on & known).any():
                 continue
-            diffused = membrane_fill(colour, known & on, on)
+            # A part of the surface cut off from its known pixels (by another surface, or by pixels
+            # on none) takes the surface's mean, not black.
+            diffused = membrane_fill(colour, known & on, on, fallback=colour[known & on].mean(axis=0))
             structure[on] = _local_mean(diffused, on, sigma)[on]
             low[on] = _local_mean(colour, known & on, sigma)[on]
     _assemble(out, image, hole, prev, nnf, top, structure, low)
