@@ -188,3 +188,19 @@ def test_without_depth_or_planes_the_painter_is_unchanged():
     np.testing.assert_array_equal(paint(blank, hole, None, None), alone)
     noise = np.random.default_rng(0).uniform(1.0, 50.0, hole.shape).astype(np.float32)
     np.testing.assert_array_equal(paint(blank, hole, None, SceneDepth(noise, _K)), alone)
+
+
+def test_the_exemplar_inpainter_paints_with_the_planes_only_when_asked():
+    """``inpaint.planes`` on: the inpainter handed the scene's depth paints as the rectified painter
+    on its window (the depth cropped with it); off (the default): as the painter without depth."""
+    from geofill.composite.exemplar import ExemplarSettings
+    from geofill.composite.inpaint import _context, get_inpainter
+    from geofill.config import InpaintConfig
+
+    _, blank, hole, _, scene = _case()
+    rows, cols = _context(hole)
+    window = paint(blank[rows, cols], hole[rows, cols], ExemplarSettings(), scene.window(rows, cols))
+    on = get_inpainter(InpaintConfig(method="exemplar", planes=True)).fill(blank, hole, scene)
+    np.testing.assert_array_equal(on[rows, cols], window)
+    off = get_inpainter(InpaintConfig(method="exemplar")).fill(blank, hole, scene)
+    np.testing.assert_array_equal(off[rows, cols], paint(blank[rows, cols], hole[rows, cols], None, None))

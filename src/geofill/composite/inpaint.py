@@ -157,7 +157,12 @@ def _exemplar(cfg: InpaintConfig, why: str = "") -> Inpainter:
         out[rows, cols] = paint(window, region[rows, cols], settings, depth and depth.window(rows, cols))
         return out
 
-    return Inpainter("exemplar", f"exemplar{why}", partial(run_depth, depth=None), run_depth=run_depth)
+    return Inpainter(
+        "exemplar",
+        f"exemplar{why}",
+        partial(run_depth, depth=None),
+        run_depth=run_depth if cfg.planes else None,
+    )
 
 
 def _lama(path: Path) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
