@@ -2,11 +2,12 @@
 across it before the texture is painted.
 
 Edges are OpenCV's line segment detector's (:func:`cv2.createLineSegmentDetector`) on the known
-image. Two segments that end at the hole on either side of it, lie on one line (within 2 degrees
-and 1.5 px) and have the same light and dark sides are one edge the hole interrupts: the image's
-profile across that edge, averaged over both segments' known pixels, is drawn across the hole
-along the line fitted to both. Those pixels are then known to the painter, which fills the rest
-around them: the patches it copies must agree with the edge, so the texture respects it.
+image. Two segments that end at the hole on either side of it and lie on one line (within 2
+degrees and 1.5 px) are one edge the hole interrupts when the image across them is one profile all
+along both (a pattern's stripes, crossed by other stripes, are not): that profile, averaged over
+both segments' known pixels, is drawn across the hole along the line fitted to both. Those pixels
+are then known to the painter, which fills the rest around them: the patches it copies must
+agree with the edge, so the texture respects it.
 """
 
 from __future__ import annotations
@@ -23,9 +24,11 @@ _ANGLE_DEG = 2.0
 _OFFSET_PX = 1.5
 #: Half the width (px) of the band drawn across the hole along an edge.
 _HALF_WIDTH = 2
-#: Least step across an edge (summed over RGB, between neighbouring offsets of its profile) for it
-#: to be continued.
+#: Least step across an edge (RGB distance between neighbouring offsets of its profile) for it to
+#: be continued, and the most its pixels may differ from the profile (RMS RGB distance), as a share
+#: of that step.
 _MIN_CONTRAST = 20.0
+_MAX_SPREAD = 0.5
 
 
 def continue_lines(image: np.ndarray, hole: np.ndarray, patch_px: int) -> np.ndarray:
@@ -122,7 +125,10 @@ def _between(along: np.ndarray, bounds: list[float]) -> np.ndarray:
 
 def _profile(image: np.ndarray, offset: np.ndarray, on: np.ndarray) -> np.ndarray | None:
     """The mean colour at each whole-pixel offset across the edge (-_HALF_WIDTH.._HALF_WIDTH) over
-    the known pixels ``on`` it, or None where an offset has none or the edge is too faint."""
+    the known pixels ``on`` it, or None where an offset has none, the edge is faint (its largest
+    step between neighbouring offsets below _MIN_CONTRAST) or it is not one edge all along (the
+    pixels differ from the profile by more than _MAX_SPREAD of that step: a line of a texture,
+    the stripes of a pattern crossing other stripes, changes along its length)."""
     k = np.rint(offset[on]).astype(int) + _HALF_WIDTH
     colours = image[on].astype(np.float64)
     counts = np.bincount(k, minlength=2 * _HALF_WIDTH + 1)[: 2 * _HALF_WIDTH + 1]
@@ -130,6 +136,8 @@ def _profile(image: np.ndarray, offset: np.ndarray, on: np.ndarray) -> np.ndarra
         return None
     sums = np.stack([np.bincount(k, colours[:, c], minlength=2 * _HALF_WIDTH + 1) for c in range(3)], 1)
     profile = sums[: 2 * _HALF_WIDTH + 1] / counts[:, None]
-    if np.abs(np.diff(profile, axis=0)).sum(axis=1).max() < _MIN_CONTRAST:
+    step = float(np.linalg.norm(np.diff(profile, axis=0), axis=1).max())
+    spread = float(np.sqrt(((colours - profile[k]) ** 2).sum(axis=1).mean()))
+    if step < _MIN_CONTRAST or spread > _MAX_SPREAD * step:
         return None
     return np.clip(np.rint(profile), 0, 255).astype(np.uint8)
