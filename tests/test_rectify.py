@@ -4,6 +4,7 @@ exactly, and a hole across the meeting line is painted with and without the dept
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
 from geofill.composite.exemplar import complete
@@ -81,7 +82,6 @@ def _floor_frequencies(out: np.ndarray, region: np.ndarray) -> list[tuple[float,
     magnitude's relative error against the truth's (2 cycles per unit along x and z: 2.83 along
     each diagonal) and its direction's error in degrees. Each frequency is the power-weighted mean
     within 0.6 cycles per unit of the spectrum's peak in its quadrant."""
-    import cv2
 
     ys, xs = np.nonzero(region)
     pts, _, _ = _cast(xs.astype(np.float64), ys.astype(np.float64))
@@ -205,3 +205,18 @@ def test_the_exemplar_inpainter_paints_with_the_planes_only_when_asked():
     np.testing.assert_array_equal(on[rows, cols], window)
     off = get_inpainter(InpaintConfig(method="exemplar")).fill(blank, hole, scene)
     np.testing.assert_array_equal(off[rows, cols], paint(blank[rows, cols], hole[rows, cols], None, None))
+
+
+def test_no_patch_on_any_surface_is_diffused_not_an_error():
+    """Where the pixels the painter may copy (a surface's, the rest on none) hold no whole patch
+    (a plane seen only as a sliver in its rectified canvas), the hole is diffused (the painter
+    raised "high <= 0" choosing a random source among none)."""
+    rng = np.random.default_rng(0)
+    image = rng.integers(0, 255, (80, 80, 3), dtype=np.uint8)
+    hole = _hole(40, 40, 20)[:80, :80]
+    ys, xs = np.mgrid[0:80, 0:80]
+    ring = ((xs - 40) ** 2 + (ys - 40) ** 2 <= 22**2) & ~hole  # 2 px: no 3x3 patch fits
+    surfaces = np.where(hole | ring, 0, -1).astype(np.int32)
+    out = complete(image, hole, None, surfaces=surfaces)
+    telea = cv2.inpaint(image, hole.astype(np.uint8), 5.0, cv2.INPAINT_TELEA)
+    np.testing.assert_array_equal(out[hole], telea[hole])

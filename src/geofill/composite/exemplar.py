@@ -335,13 +335,13 @@ def complete(
     # 3x3. A hole no deeper than _DIFFUSE_DEPTH_PX (speckles, cracks) is diffused: there is no
     # texture to continue across a pixel or two, and on speckles every 4 px of a sharp pattern the
     # 3x3 copies were twice as far from the truth as Telea (mean error 42 vs 21 levels).
-    while r > 1 and not _has_patch(hole, 2 * r + 1):
+    # Pixels on no surface are never copied either.
+    blocked = hole if surfaces is None else hole | (surfaces < 0)
+    while r > 1 and not _has_patch(blocked, 2 * r + 1):
         r -= 1
     side = 2 * r + 1
-    if not _deeper_than(hole, _DIFFUSE_DEPTH_PX) or not _has_patch(hole, side):
-        diffused = cv2.inpaint(image, hole.astype(np.uint8), 5.0, cv2.INPAINT_TELEA)
-        np.copyto(out, diffused, where=hole[..., None])
-        return out
+    if not _deeper_than(hole, _DIFFUSE_DEPTH_PX) or not _has_patch(blocked, side):
+        return _diffused(image, hole, out)
 
     # Levels longer than _SEARCH_LONG_SIDE are not searched: their matches are the searched level's
     # scaled up (at 4K a search would cost seconds and a copied patch there is as sharp), and only
@@ -359,6 +359,8 @@ def complete(
     imgs = [_downsample_strips(image, hole, top)]
     holes = holes[top:]
     barred = [np.zeros_like(holes[0]) if surfaces is None else _at(surfaces, holes[0].shape) < 0]
+    if not _has_patch(holes[0] | barred[0], side):  # the reduced surfaces leave no patch to copy
+        return _diffused(image, hole, out)
     # Coarser levels: halve until the hole is about a patch deep, keeping known patches to copy.
     while (
         depth / 2 ** (len(imgs) - 1) > _COARSE_DEPTH_PATCHES * side
@@ -453,6 +455,12 @@ def complete(
 _STRIP_ROWS = 256
 #: Stands for "no mean to subtract" in :func:`_copy_matches` (numba wants an array).
 _NO_LOW = np.zeros((1, 1, 3), np.float32)
+
+
+def _diffused(image: np.ndarray, hole: np.ndarray, out: np.ndarray) -> np.ndarray:
+    """``out`` with ``hole`` diffused from ``image`` (Telea): where there is nothing to copy."""
+    np.copyto(out, cv2.inpaint(image, hole.astype(np.uint8), 5.0, cv2.INPAINT_TELEA), where=hole[..., None])
+    return out
 
 
 def _deeper_than(hole: np.ndarray, px: float) -> bool:
