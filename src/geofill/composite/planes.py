@@ -146,7 +146,7 @@ def _plane_surfaces(
     labels = np.where(cv2.dilate(hole.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0, labels, smooth)
     labels[hole] = 0
     extend(labels, hole)
-    _split_by_meeting_lines(labels, hole, ring, planes, scene.K, patch_px)
+    _split_by_meeting_lines(labels, hole, ring, planes, scene.K, ray, patch_px)
     return PlaneSurfaces(labels, tuple(planes))
 
 
@@ -211,7 +211,13 @@ def meeting_line(a: Plane, b: Plane, K: np.ndarray) -> np.ndarray:
 
 
 def _split_by_meeting_lines(
-    labels: np.ndarray, hole: np.ndarray, ring: np.ndarray, planes: list[Plane], K: np.ndarray, patch_px: int
+    labels: np.ndarray,
+    hole: np.ndarray,
+    ring: np.ndarray,
+    planes: list[Plane],
+    K: np.ndarray,
+    ray: np.ndarray,
+    patch_px: int,
 ) -> None:
     """In place: where two planes meet on the ``ring`` (each has at least a patch width of ring
     pixels within _MEET_PX of their meeting line), the hole pixels that went to either are shared
@@ -221,7 +227,6 @@ def _split_by_meeting_lines(
     nearest known pixel decides there, as without depth."""
     h, w = labels.shape
     ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)
-    ray = rays(K, (h, w))
     for i in range(len(planes)):
         for j in range(i + 1, len(planes)):
             line = meeting_line(planes[i], planes[j], K)
