@@ -4,8 +4,8 @@ Seen in perspective, a tiled floor's tiles shrink and turn towards the vanishing
 copied from nearer the camera into the hole carries tiles too large and turned the wrong way. So
 each plane around the hole (:mod:`geofill.composite.planes`, from the pipeline's depth) is viewed
 head on first: the image is warped by the homography of a camera turned to face the plane
-(``K' R K^-1``, ``R`` taking the plane's normal to the optical axis, ``K'`` scaled so the hole keeps
-its area), where every tile has one size and one direction; the plane's part of the hole is painted
+(``K' R K^-1``, ``R`` taking the plane's normal to the optical axis, ``K'`` scaled so that no hole
+pixel is shrunk), where every tile has one size and one direction; the plane's part of the hole is painted
 there from the plane's own known pixels only (:func:`geofill.composite.exemplar.complete`, the
 other surfaces a separate surface it never copies from), and warped back. What lies on no plane is
 painted in the image as before, from its own appearance surface.
@@ -47,7 +47,8 @@ def paint(
     if not hole.any():
         return image.copy()
     # Straight edges across the hole first: the texture is painted around them. The surfaces are
-    # found as if they were not drawn (a drawn edge is no surface of its own).
+    # found from the known pixels alone, the edges drawn then made a surface of their own: the
+    # structure diffused around them does not take their colour (a dark edge cast a dark shadow).
     image = image.copy()
     drawn = continue_lines(image, hole, side)
     colour = image.astype(np.float32) / 255.0
@@ -55,8 +56,6 @@ def paint(
     if surfaces is None:
         labels = segment(colour, hole, side) if drawn.any() else None
         if labels is not None:
-            # The edges drawn are a surface of their own: the structure diffused around them does
-            # not take their colour (a dark edge would cast a dark shadow).
             labels[drawn] = labels.max() + 1
         return complete(image, hole & ~drawn, s, surfaces=labels)
     hole = hole & ~drawn
@@ -71,7 +70,9 @@ def paint(
             np.copyto(out, filled, where=part[..., None])
             left &= ~part
     if left.any():
-        out = complete(out, left, s, surfaces=surfaces.labels)
+        labels = surfaces.labels.copy()
+        labels[drawn] = labels.max() + 1
+        out = complete(out, left, s, surfaces=labels)
     return out
 
 
