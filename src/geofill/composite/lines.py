@@ -22,6 +22,8 @@ _REACH_PATCHES = 1.0
 #: Two segments lie on one line within these (degrees; px from each other's line).
 _ANGLE_DEG = 2.0
 _OFFSET_PX = 1.5
+#: Longest side (px) the segments are detected at.
+_LONG_SIDE = 1400
 #: Half the width (px) of the band drawn across the hole along an edge.
 _HALF_WIDTH = 2
 #: Least step across an edge (RGB distance between neighbouring offsets of its profile) for it to
@@ -40,13 +42,20 @@ def continue_lines(image: np.ndarray, hole: np.ndarray, patch_px: int) -> np.nda
     # The hole's own pixels (black, or the object in a removal) would be edges: filled with the
     # known pixels' median, the hole's edge is a weak step the contrast test drops.
     grey = np.where(hole, np.uint8(np.median(grey[known])), grey).astype(np.uint8)
+    # Detected at most _LONG_SIDE px long (at 4K the detector alone costs a second) and scaled back.
+    f = max(1, -(-max(hole.shape) // _LONG_SIDE))
+    if f > 1:
+        grey = cv2.resize(
+            grey, (-(-grey.shape[1] // f), -(-grey.shape[0] // f)), interpolation=cv2.INTER_AREA
+        )
     found = cv2.createLineSegmentDetector(cv2.LSD_REFINE_STD).detect(grey)[0]
     if found is None:
         return drawn
+    found = (found.reshape(-1, 4).astype(np.float64) + 0.5) * f - 0.5
     reach = _REACH_PATCHES * patch_px
     distance = cv2.distanceTransform(known.astype(np.uint8), cv2.DIST_L2, 3)
     ends = []
-    for x0, y0, x1, y1 in found.reshape(-1, 4).astype(np.float64):
+    for x0, y0, x1, y1 in found:
         a, b = np.array([x0, y0]), np.array([x1, y1])
         length = float(np.linalg.norm(b - a))
         if length < _MIN_LENGTH_PATCHES * patch_px:
@@ -58,29 +67,33 @@ def continue_lines(image: np.ndarray, hole: np.ndarray, patch_px: int) -> np.nda
         if min(da, db) > reach or max(da, db) < 2 * reach or _crosses(hole, near, far):
             continue
         ends.append((near, far))
-    h, w = hole.shape
-    ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)
     for i in range(len(ends)):
         for j in range(i + 1, len(ends)):
             line = _collinear(ends[i], ends[j])
             if line is None or not _crosses(hole, ends[i][0], ends[j][0]):
                 continue
+            # Everything below lies within the box round both segments.
+            corners = np.array([*ends[i], *ends[j]])
+            lo = np.maximum(np.floor(corners.min(0)).astype(int) - _HALF_WIDTH - 1, 0)
+            hi = np.minimum(np.ceil(corners.max(0)).astype(int) + _HALF_WIDTH + 2, hole.shape[::-1])
+            box = (slice(lo[1], hi[1]), slice(lo[0], hi[0]))
+            ys, xs = np.mgrid[box].astype(np.float64)
             point, direction = line
             normal = np.array([-direction[1], direction[0]])
             offset = (xs - point[0]) * normal[0] + (ys - point[1]) * normal[1]
             along = (xs - point[0]) * direction[0] + (ys - point[1]) * direction[1]
             ti = [float((p - point) @ direction) for p in ends[i]]
             tj = [float((p - point) @ direction) for p in ends[j]]
-            on = (np.abs(offset) <= _HALF_WIDTH + 0.5) & known
+            on = (np.abs(offset) <= _HALF_WIDTH + 0.5) & known[box]
             on &= _between(along, ti) | _between(along, tj)
-            band = hole & (np.abs(offset) <= _HALF_WIDTH + 0.5)
+            band = hole[box] & (np.abs(offset) <= _HALF_WIDTH + 0.5)
             band &= _between(along, [ti[0], tj[0]])
-            profile = _profile(image, offset, on)
+            profile = _profile(image[box], offset, on)
             if profile is None or not band.any():
                 continue
             k = np.clip(np.rint(offset[band]).astype(int) + _HALF_WIDTH, 0, 2 * _HALF_WIDTH)
-            image[band] = profile[k]
-            drawn |= band
+            image[box][band] = profile[k]
+            drawn[box] |= band
     return drawn
 
 
