@@ -698,6 +698,14 @@ class InpaintConfig:
         "Telea's diffusion (large-scale structure from diffusion, texture from exemplars); 0: exemplars only "
         "(most texture, lower hole PSNR).",
     )
+    planes: bool = setting(
+        False,
+        "\"exemplar\", in reference fills: fit planes to the target's depth around the hole (the references' "
+        "renders), split the surfaces by them (the wall's foot where the planes meet) and paint each plane "
+        "in its own rectified (head-on) coordinates, so tiles keep their size and direction under "
+        "perspective. Off by default: on 8 DEV restoration pairs it costs hole PSNR and time "
+        "(docs/architecture.md, 'Planes from depth').",
+    )
     lama_model: LocalPath | None = setting(
         None,
         "Explicit LaMa ONNX file (e.g. Carve/LaMa-ONNX's lama.onnx); wins over the environment variable, "

@@ -32,6 +32,7 @@ import numpy as np
 from .camera import Intrinsics
 from .composite.inpaint import Inpainter, get_inpainter
 from .composite.merge import merge_fill
+from .composite.planes import SceneDepth
 from .config import FillConfig, OptimizeConfig
 from .depth import BackendChoice, DepthContext, choose_backend
 from .depth.stage import SourceDepth, estimate_depth, rotation_only_depth
@@ -506,7 +507,7 @@ def fill(
         fusion = fuse_references(ctx.target, ctx.hole, [r for r in refs if r.usable], cfg)
         notes.append(fusion.summary())
     with prog.stage("composite") as notes:
-        image = composite(ctx, fusion)
+        image = composite(ctx, fusion, scene_depth(ctx, [r for r in refs if r.usable]))
         notes.append(f"single-image inpainting: {ctx.inpainter.description}")
     report = _report(ctx, refs, fusion, prog)
     report.registration = across.registration
@@ -806,12 +807,30 @@ def _run_references(
         return list(pool.map(one, refs))
 
 
-def composite(ctx: FillContext, fusion: Fusion) -> np.ndarray:
+def composite(ctx: FillContext, fusion: Fusion, depth: SceneDepth | None = None) -> np.ndarray:
     """The fused render inside the hole where it exists, single-image inpainting for the rest,
     merged with a feathered blending map (:func:`geofill.composite.merge.merge_fill`); pixels outside the
-    hole are copied from the target unchanged."""
+    hole are copied from the target unchanged. ``depth``: the target's, for the painter's planes."""
     feather = config_px(ctx.cfg.refine.feather_px, ctx.hole.shape)
-    return merge_fill(ctx.target, ctx.hole, fusion.image, fusion.alpha, ctx.inpainter, feather)
+    return merge_fill(ctx.target, ctx.hole, fusion.image, fusion.alpha, ctx.inpainter, feather, depth)
+
+
+def scene_depth(ctx: FillContext, refs: list[ReferenceArtifacts]) -> SceneDepth | None:
+    """The target's depth around the hole from the reference whose render covers most of the
+    image (its target-view depth, in its own pose units: planes do not depend on the scale), with
+    the target's intrinsics at its size; None without a render."""
+    best, count = None, 0
+    for r in refs:
+        if r.render is None or r.intrinsics() is None:
+            continue
+        depth = r.render.render.depth
+        n = int(np.count_nonzero(np.isfinite(depth[r.render.render.window()])))
+        if n > count:
+            best, count = r, n
+    if best is None:
+        return None
+    h, w = ctx.hole.shape
+    return SceneDepth(best.render.render.depth, best.intrinsics()[0].resized(w, h).K)
 
 
 def _refused_fractions(hole: np.ndarray, used: list[ReferenceArtifacts], fusion: Fusion) -> dict[str, float]:

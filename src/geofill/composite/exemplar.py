@@ -278,18 +278,22 @@ class _Level:
     def make(cls, img: np.ndarray, hole: np.ndarray, r: int, surfaces: np.ndarray) -> _Level:
         h, w = hole.shape
         kernel = np.ones((2 * r + 1, 2 * r + 1), np.uint8)
-        valid = cv2.erode((~hole).astype(np.uint8), kernel, borderType=cv2.BORDER_CONSTANT, borderValue=0) > 0
+        slab = np.ascontiguousarray(cv2.resize(surfaces, (w, h), interpolation=cv2.INTER_NEAREST))
+        # A source patch lies wholly on known pixels of some surface.
+        usable = (~hole & (slab >= 0)).astype(np.uint8)
+        valid = cv2.erode(usable, kernel, borderType=cv2.BORDER_CONSTANT, borderValue=0) > 0
         touch = cv2.dilate(hole.astype(np.uint8), kernel) > 0
         ty, tx = np.nonzero(touch)
         tid = np.full((h, w), -1, np.int32)
         tid[ty, tx] = np.arange(ty.size, dtype=np.int32)
         hy, hx = np.nonzero(hole)
-        slab = np.ascontiguousarray(cv2.resize(surfaces, (w, h), interpolation=cv2.INTER_NEAREST))
         tlab = slab[ty, tx]
         sources = np.bincount(slab[valid], minlength=int(slab.max()) + 1)
-        targets = np.bincount(tlab, minlength=sources.size)
+        targets = np.bincount(tlab[tlab >= 0], minlength=sources.size)
         thin = sources < np.maximum(_MIN_SURFACE_SOURCES * targets, (2 * r + 1) ** 2)
-        tlab = np.where(thin[tlab] | (sources.size == 1), -1, tlab).astype(np.int32)
+        tlab = np.where((tlab < 0) | thin[np.maximum(tlab, 0)] | (sources.size == 1), -1, tlab).astype(
+            np.int32
+        )
         return cls(img, hole, valid, ty.astype(np.int32), tx.astype(np.int32), tid, hy, hx, slab, tlab)
 
 
@@ -310,11 +314,18 @@ def _block_sum(a: np.ndarray) -> np.ndarray:
     return a[0::2, 0::2] + a[1::2, 0::2] + a[0::2, 1::2] + a[1::2, 1::2]
 
 
-def complete(image: np.ndarray, hole: np.ndarray, settings: ExemplarSettings | None = None) -> np.ndarray:
+def complete(
+    image: np.ndarray,
+    hole: np.ndarray,
+    settings: ExemplarSettings | None = None,
+    surfaces: np.ndarray | None = None,
+) -> np.ndarray:
     """``image`` (HxWx3 uint8) with ``hole`` (HxW bool) painted from patches of the rest of the
     image, which is returned unchanged. ``settings.patch_radius`` shrinks (to 1) where no whole
     patch of that size is known; a hole at most 2 px deep, or one leaving no 3x3 patch known, is
-    diffused (Telea).
+    diffused (Telea). ``surfaces`` (HxW int32, every pixel's surface; negative: on none, never
+    copied from): given by the caller (:mod:`geofill.composite.rectify`, from the scene's planes),
+    else from appearance (:func:`geofill.composite.surfaces.segment`).
 
     Memory is bounded by the searched levels (at most ``_SEARCH_LONG_SIDE`` px long): the levels
     above them are never held whole; the full-resolution result is assembled in row strips."""
@@ -328,13 +339,13 @@ def complete(image: np.ndarray, hole: np.ndarray, settings: ExemplarSettings | N
     # 3x3. A hole no deeper than _DIFFUSE_DEPTH_PX (speckles, cracks) is diffused: there is no
     # texture to continue across a pixel or two, and on speckles every 4 px of a sharp pattern the
     # 3x3 copies were twice as far from the truth as Telea (mean error 42 vs 21 levels).
-    while r > 1 and not _has_patch(hole, 2 * r + 1):
+    # Pixels on no surface are never copied either.
+    blocked = hole if surfaces is None else hole | (surfaces < 0)
+    while r > 1 and not _has_patch(blocked, 2 * r + 1):
         r -= 1
     side = 2 * r + 1
-    if not _deeper_than(hole, _DIFFUSE_DEPTH_PX) or not _has_patch(hole, side):
-        diffused = cv2.inpaint(image, hole.astype(np.uint8), 5.0, cv2.INPAINT_TELEA)
-        np.copyto(out, diffused, where=hole[..., None])
-        return out
+    if not _deeper_than(hole, _DIFFUSE_DEPTH_PX) or not _has_patch(blocked, side):
+        return _diffused(image, hole, out)
 
     # Levels longer than _SEARCH_LONG_SIDE are not searched: their matches are the searched level's
     # scaled up (at 4K a search would cost seconds and a copied patch there is as sharp), and only
@@ -351,23 +362,31 @@ def complete(image: np.ndarray, hole: np.ndarray, settings: ExemplarSettings | N
     depth = float(distance_to(~holes[top]).max())
     imgs = [_downsample_strips(image, hole, top)]
     holes = holes[top:]
+    barred = [np.zeros_like(holes[0]) if surfaces is None else _at(surfaces, holes[0].shape) < 0]
+    if not _has_patch(holes[0] | barred[0], side):  # the reduced surfaces leave no patch to copy
+        return _diffused(image, hole, out)
     # Coarser levels: halve until the hole is about a patch deep, keeping known patches to copy.
     while (
         depth / 2 ** (len(imgs) - 1) > _COARSE_DEPTH_PATCHES * side
         or max(hole.shape) >> (top + len(imgs) - 1) > _COARSE_LONG_SIDE
     ) and min(hole.shape) >> (top + len(imgs)) >= _MIN_SIDE_PATCHES * side:
         small, small_hole = _downsample(imgs[-1], holes[-1])
-        if not _has_patch(small_hole, side):
+        small_barred = _downsample_hole(barred[-1])
+        if not _has_patch(small_hole | small_barred, side):
             break
         imgs.append(small)
         holes.append(small_hole)
+        barred.append(small_barred)
 
     # Texture features (Newson et al. 2017): mean absolute x and y derivatives over a window as wide
     # as a coarsest-level pixel, computed at the finest searched level and carried down the pyramid,
     # so that coarse matching, where the image itself is smooth, still tells textured from flat.
     # Each hole pixel is copied from its own surface (see surfaces.py), and its structure diffused
     # from that surface's ring only.
-    surfaces = segment(imgs[0], holes[0], side)
+    if surfaces is None:
+        surfaces = segment(imgs[0], holes[0], side)
+    else:
+        surfaces = _at(surfaces, holes[0].shape)
     imgs = _with_features(imgs[0], holes)
 
     # Coarsest level: diffusion for the structure.
@@ -432,8 +451,10 @@ def complete(image: np.ndarray, hole: np.ndarray, settings: ExemplarSettings | N
         known = ~holes[0]
         sigma = s.structure_sigma / 2**top
         structure, low = colour.copy(), colour.copy()
-        steps = _surface_steps(colour, known, surfaces, side)
-        diffused = membrane_fill(colour - steps, known) + steps
+        # Pixels on no surface (negative) are never read: neither copied nor diffused from.
+        usable = known & (surfaces >= 0)
+        steps = _surface_steps(colour, usable, surfaces, side)
+        diffused = membrane_fill(colour - steps, usable, fallback=colour[usable].mean(axis=0)) + steps
         for lab in range(int(surfaces.max()) + 1):
             on = surfaces == lab
             if not (on & known).any():
@@ -448,6 +469,12 @@ def complete(image: np.ndarray, hole: np.ndarray, settings: ExemplarSettings | N
 _STRIP_ROWS = 256
 #: Stands for "no mean to subtract" in :func:`_copy_matches` (numba wants an array).
 _NO_LOW = np.zeros((1, 1, 3), np.float32)
+
+
+def _diffused(image: np.ndarray, hole: np.ndarray, out: np.ndarray) -> np.ndarray:
+    """``out`` with ``hole`` diffused from ``image`` (Telea): where there is nothing to copy."""
+    np.copyto(out, cv2.inpaint(image, hole.astype(np.uint8), 5.0, cv2.INPAINT_TELEA), where=hole[..., None])
+    return out
 
 
 def _deeper_than(hole: np.ndarray, px: float) -> bool:
@@ -555,7 +582,8 @@ def _surface_steps(colour: np.ndarray, known: np.ndarray, surfaces: np.ndarray, 
     anchor = np.zeros(n)
     anchor[0] = 1.0
     offsets = np.linalg.lstsq(np.array([anchor, *rows]), np.array([np.zeros(3), *rhs]), rcond=None)[0]
-    return offsets.astype(np.float32)[surfaces]
+    # Pixels on no surface (negative labels) get no offset.
+    return np.where((surfaces >= 0)[..., None], offsets.astype(np.float32)[np.maximum(surfaces, 0)], 0.0)
 
 
 def _local_mean(values: np.ndarray, weight: np.ndarray, sigma: float) -> np.ndarray:
@@ -571,6 +599,11 @@ def _local_mean(values: np.ndarray, weight: np.ndarray, sigma: float) -> np.ndar
     den = cv2.resize(weight.astype(np.float32), size, interpolation=cv2.INTER_AREA)
     num, den = cv2.GaussianBlur(num, (0, 0), sigma / f), cv2.GaussianBlur(den, (0, 0), sigma / f)
     return resize_channels(num / np.maximum(den, 1e-6)[..., None], (w, h), cv2.INTER_LINEAR)
+
+
+def _at(surfaces: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """``surfaces`` (int32 labels) at ``shape``, nearest neighbour."""
+    return cv2.resize(surfaces.astype(np.int32), shape[::-1], interpolation=cv2.INTER_NEAREST)
 
 
 def _has_patch(hole: np.ndarray, side: int) -> bool:

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 
 import cv2
@@ -34,6 +35,7 @@ from ..config import InpaintConfig
 from ..errors import InpaintModelError, MissingExtraError
 from ..extras import available, require
 from ..weights import ResolvedWeights, WeightsSpec, WeightsUnavailable, resolve_weights
+from .planes import SceneDepth
 
 _METHODS = {"telea": cv2.INPAINT_TELEA, "ns": cv2.INPAINT_NS}
 #: Carve/LaMa-ONNX (Apache-2.0, like LaMa): big-LaMa exported with a fixed 512 x 512 input, inputs
@@ -70,15 +72,18 @@ class Inpainter:
     """A resolved single-image inpainter: ``run(image HxWx3 uint8, region HxW bool)`` returns the
     image with ``region`` filled; ``description`` says which method and why (for the report).
     ``context_px``: how far beyond the region's bounding box ``run`` reads (None: anywhere), so a
-    window that wide gives the same fill as the whole image."""
+    window that wide gives the same fill as the whole image. ``run_depth``: the same with the
+    scene's depth (painters that use it: the exemplar painter, for the planes around the hole)."""
 
     name: str
     description: str
     run: Callable[[np.ndarray, np.ndarray], np.ndarray]
     context_px: int | None = None
+    run_depth: Callable[[np.ndarray, np.ndarray, SceneDepth], np.ndarray] | None = None
 
-    def fill(self, image: np.ndarray, hole: np.ndarray) -> np.ndarray:
-        """``image`` (HxWx3 uint8) with ``hole`` (bool) filled from its surroundings, the rest kept."""
+    def fill(self, image: np.ndarray, hole: np.ndarray, depth: SceneDepth | None = None) -> np.ndarray:
+        """``image`` (HxWx3 uint8) with ``hole`` (bool) filled from its surroundings, the rest kept;
+        ``depth`` (the target's, at this size): the scene's, for painters that use it."""
         out = image.copy()
         if not hole.any():
             return out
@@ -86,7 +91,11 @@ class Inpainter:
         # and masked writes cost more than Telea itself.
         rows, cols = mask_window(hole, self.context_px)
         region = hole[rows, cols]
-        filled = self.run(np.ascontiguousarray(image[rows, cols]), region)
+        window = np.ascontiguousarray(image[rows, cols])
+        if depth is not None and self.run_depth is not None:
+            filled = self.run_depth(window, region, depth.window(rows, cols))
+        else:
+            filled = self.run(window, region)
         np.copyto(out[rows, cols], filled, where=region[..., None])
         return out
 
@@ -137,17 +146,24 @@ def _patchmatch(patch_radius_px: int) -> Callable[[np.ndarray, np.ndarray], np.n
 
 
 def _exemplar(cfg: InpaintConfig, why: str = "") -> Inpainter:
-    from .exemplar import ExemplarSettings, complete
+    from .exemplar import ExemplarSettings
+    from .rectify import paint
 
     settings = ExemplarSettings(patch_radius=cfg.patch_radius_px, structure_sigma=cfg.structure_sigma_px)
 
-    def run(image: np.ndarray, region: np.ndarray) -> np.ndarray:
+    def run_depth(image: np.ndarray, region: np.ndarray, depth: SceneDepth | None) -> np.ndarray:
         rows, cols = _context(region)
         out = image.copy()
-        out[rows, cols] = complete(np.ascontiguousarray(image[rows, cols]), region[rows, cols], settings)
+        window = np.ascontiguousarray(image[rows, cols])
+        out[rows, cols] = paint(window, region[rows, cols], settings, depth and depth.window(rows, cols))
         return out
 
-    return Inpainter("exemplar", f"exemplar{why}", run)
+    return Inpainter(
+        "exemplar",
+        f"exemplar{why}",
+        partial(run_depth, depth=None),
+        run_depth=run_depth if cfg.planes else None,
+    )
 
 
 def _lama(path: Path) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:

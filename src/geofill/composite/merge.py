@@ -13,6 +13,7 @@ import numpy as np
 
 from ..utils.distance import distance_to
 from .inpaint import Inpainter, mask_window
+from .planes import SceneDepth
 
 
 def blend_map(hole: np.ndarray, alpha: np.ndarray, feather_px: float) -> np.ndarray:
@@ -45,22 +46,24 @@ def merge_fill(
     alpha: np.ndarray | None,
     inpainter: Inpainter,
     feather_px: float = 0.0,
+    depth: SceneDepth | None = None,
 ) -> np.ndarray:
     """Composite of ``target`` (HxWx3 uint8), the ``render`` (HxWx3 uint8, valid where ``alpha``)
     and single-image inpainting; without a render the whole hole is inpainted. Pixels outside
-    ``hole`` are the target's, byte for byte.
+    ``hole`` are the target's, byte for byte. ``depth``: the scene's (target view), for the
+    painter's planes.
 
     Only the hole's bounding box grown by what the inpainter reads (:attr:`Inpainter.context_px`)
     is worked on: at 4K the full-image maps and copies cost more than the inpainting."""
     if render is None or alpha is None or not hole.any():
-        return inpainter.fill(target, hole)
+        return inpainter.fill(target, hole, depth)
     out = target.copy()
     rows, cols = mask_window(hole, inpainter.context_px)
     hole_w, render_w, view = hole[rows, cols], render[rows, cols], out[rows, cols]
     m = blend_map(hole_w, alpha[rows, cols], feather_px)
     pasted = view.copy()
     np.copyto(pasted, render_w, where=(m > 0)[..., None])
-    filled = inpainter.fill(pasted, hole_w & (m < 1.0))
+    filled = inpainter.fill(pasted, hole_w & (m < 1.0), depth and depth.window(rows, cols))
     ramp = (m > 0) & (m < 1)
     if ramp.any():
         w = m[ramp][:, None]

@@ -55,7 +55,7 @@ def segment(image: np.ndarray, hole: np.ndarray, patch_px: int) -> np.ndarray:
     labels = np.argmin(dist, axis=2).astype(np.int32)
     # A few pixels' worth of label noise would put single source patches on the wrong surface.
     labels = cv2.medianBlur(labels.astype(np.uint8), 5).astype(np.int32)
-    _extend(labels, hole)
+    extend(labels, hole)
     _straighten(labels, hole, image, 4 * patch_px)
     return labels
 
@@ -127,7 +127,7 @@ def _lloyd(samples: np.ndarray, k: int, iterations: int = 15) -> tuple[np.ndarra
     return centres, float(d.min(axis=1).sum())
 
 
-def _extend(labels: np.ndarray, hole: np.ndarray) -> None:
+def extend(labels: np.ndarray, hole: np.ndarray) -> None:
     """In place: each hole pixel takes the label of its nearest known pixel."""
     _, nearest = cv2.distanceTransformWithLabels(
         hole.astype(np.uint8), cv2.DIST_L2, 5, labelType=cv2.DIST_LABEL_PIXEL
