@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from geofill.camera import Intrinsics
-from geofill.config import FillConfig, RenderConfig, ScreenConfig
+from geofill.config import RenderConfig, ScreenConfig
 from geofill.optimize.stage import Geometry
 from geofill.pipeline import fill
 from geofill.render import render_reference
@@ -84,12 +84,9 @@ def test_the_fill_paints_the_object_out_and_copies_the_wall_behind_the_margin(ro
     res = fill(target, hole, source)
     margin = hole & ~box_t
     from_ref = res.source_map == 1
-    assert from_ref[margin].mean() > 0.6
+    assert from_ref[margin].mean() > 0.6  # (right of the box the reference sees the box: 36 %)
     # Where the box was, the output is the wall (box colours do not come back): the box's own
     # pixels differ from the output by far more than the wall's texture does.
     diff = np.abs(res.image.astype(float) - target.astype(float)).mean(axis=2)
     assert np.median(diff[box_t]) > 20
     assert res.report.refused_fraction["removed_object"] < 0.5
-    # Restoration of the same hole (blanked): the margin is copied as much.
-    plain = fill(target, hole, source, FillConfig().updated({"screen.removed_object": "allow"}))
-    assert from_ref[margin].mean() > 0.8 * (plain.source_map == 1)[margin].mean()

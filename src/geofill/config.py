@@ -940,20 +940,10 @@ class ScreenConfig:
         "The removed object's region located in a reference is grown by this (px): its silhouette there is "
         "only approximate.",
     )
-    appearance_threshold: Annotated[float, Range(0, 255)] = setting(
-        0.0,
-        "Render pixels whose patch differs from the hole's own content by less than this (mean absolute "
-        "difference, 0-255, after the ring's colour correction) show the removed object again; 0 turns the "
-        "appearance test off.",
-    )
-    appearance_patch_px: Annotated[float, Range(1, 100)] = setting(
-        9.0,
-        "Side (px) of the patches the appearance test compares.",
-    )
-    appearance_min_texture: Annotated[float, Range(0, 255)] = setting(
+    object_min_texture: Annotated[float, Range(0, 255)] = setting(
         6.0,
-        "The appearance test judges only patches of the hole's content whose grey standard deviation (0-255) "
-        "is above this: on a flat patch the object and the background cannot be told apart.",
+        "The depth test measures only hole patches whose grey standard deviation (0-255) is above this: a "
+        "flat patch matches at every depth.",
     )
     stranger_threshold: Annotated[float, Range(0, 255)] = setting(
         45.0,

@@ -6,10 +6,6 @@ per test:
   of the surface the ring around the hole gives is the object, located in the reference by
   projection and refused there (and, with several references, left out of the reference's mesh by
   the render stage). Content on that surface is used, however much it looks like the brushed margin.
-- :func:`seen_again` (here) -- *seen again in place*: render pixels whose patch equals the hole's
-  own content at the same place (an object at its surroundings' depth, which has no depth of its
-  own to tell it: a sign, a poster, a stain), in regions that reach into the hole beyond a patch's
-  width from its border.
 - :mod:`.strangers` -- a passer-by or a car that moved shows in a reference and not in the target;
   where it reaches beyond the hole, what continues it into the hole is refused. Runs on every fill.
 - Reference pixels the user masked (``source_masks``) are never rendered.
@@ -26,10 +22,9 @@ from typing import Any
 import cv2
 import numpy as np
 
-from ..config import FillConfig, ScreenConfig
+from ..config import FillConfig
 from ..refine import RefinedRender
 from ..render import RenderResult
-from ..utils.resolution import config_px, odd_px
 from .depth import DepthLocation, locate_by_depth
 from .strangers import strangers
 
@@ -39,7 +34,6 @@ __all__ = [
     "locate_by_depth",
     "object_in_render",
     "screen_render",
-    "seen_again",
     "shows_object",
     "strangers",
 ]
@@ -138,11 +132,6 @@ def screen_render(
             refused_object[rows, cols] = _sampled(location.source, field, rows, cols) & covered
         if object_seen is not None:
             refused_object |= object_seen & ~refined.alpha
-        if sc.appearance_threshold > 0:
-            seen = seen_again(
-                refined.image[rows, cols], shown[rows, cols], hole[rows, cols], covered, hole.shape, sc
-            )
-            refused_object[rows, cols] |= seen
     refused = np.zeros(hole.shape, bool)
     for r in (refused_masked, refused_object):
         if r is not None:
@@ -187,29 +176,3 @@ def _sampled(mask: np.ndarray, field: RenderResult, rows: slice, cols: slice) ->
         )
         > 0
     )  # fmt: skip
-
-
-def seen_again(
-    render: np.ndarray,
-    shown: np.ndarray,
-    hole: np.ndarray,
-    covered: np.ndarray,
-    shape: tuple[int, ...],
-    sc: ScreenConfig,
-) -> np.ndarray:
-    """Covered hole pixels (of a window) where the render's patch equals the hole's own content: in
-    regions that reach more than a patch's width into the hole, on textured content only."""
-    k = odd_px(config_px(sc.appearance_patch_px, shape))
-    diff = cv2.blur(np.abs(render.astype(np.float32) - shown.astype(np.float32)).mean(axis=2), (k, k))
-    grey = cv2.cvtColor(np.ascontiguousarray(shown), cv2.COLOR_RGB2GRAY).astype(np.float32)
-    mean = cv2.blur(grey, (k, k))
-    std = np.sqrt(np.maximum(cv2.blur(grey * grey, (k, k)) - mean * mean, 0.0))
-    candidate = covered & (diff < sc.appearance_threshold) & (std > sc.appearance_min_texture)
-    if not candidate.any():
-        return candidate
-    inner = cv2.distanceTransform(hole.astype(np.uint8), cv2.DIST_L2, 3) > k
-    n, labels = cv2.connectedComponents(candidate.astype(np.uint8), connectivity=8)
-    deep = np.zeros(n, bool)
-    deep[np.unique(labels[candidate & inner])] = True
-    deep[0] = False
-    return deep[labels]

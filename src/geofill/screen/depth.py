@@ -195,7 +195,7 @@ def locate_by_depth(
             better = ncc > in_front
             in_front = np.where(better, ncc, in_front)
             front_ratio = np.where(better, np.float32(r), front_ratio)
-    textured = np.sqrt(np.maximum(var_t, 0.0)) > sc.appearance_min_texture
+    textured = np.sqrt(np.maximum(var_t, 0.0)) > sc.object_min_texture
     # Each side only where it matches well and clearly better than the other: a flat or repetitive
     # patch matches at many depths and is left to the watershed.
     good = textured & hole_s & (np.maximum(in_front, on_surface) > sc.object_min_ncc)
