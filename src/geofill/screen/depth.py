@@ -12,7 +12,8 @@ per hole pixel where its patch matches the reference best (zero-mean normalised 
 - pixels that match on the surface are background, however much the brushed margin around the
   object shows (the margin is in every reference too: only its depth tells it from the object);
 - the rest (flat patches, occluded ones) take the label of their region: OpenCV's watershed on the
-  hole's content grows the two from their seeds, so the object's own edges bound it.
+  hole's content grows the two from their seeds, so the object's own edges bound it (a flat part
+  that no measured background bounds goes with the object).
 
 The object's pixels, at their depth (measured, or carried over the object from its measured
 pixels by a membrane), are projected into the reference: that is the object as the reference shows
@@ -198,23 +199,31 @@ def locate_by_depth(
     textured = np.sqrt(np.maximum(var_t, 0.0)) > sc.object_min_texture
     # Each side only where it matches well and clearly better than the other: a flat or repetitive
     # patch matches at many depths and is left to the watershed.
-    good = textured & hole_s & (np.maximum(in_front, on_surface) > sc.object_min_ncc)
-    front = good & (in_front - on_surface > sc.object_ncc_gap)
-    behind = good & (on_surface - in_front > sc.object_ncc_gap)
-    measured = float(np.count_nonzero(front | behind)) / max(int(hole_s.sum()), 1)
-    # Seeds too small to be an object are matching noise.
+    # The ring around the hole is swept too: where it is measured on the surface it bounds the object.
+    good = textured & (np.maximum(in_front, on_surface) > sc.object_min_ncc)
+    front = good & hole_s & (in_front - on_surface > sc.object_ncc_gap)
+    # On the surface where it matches best there: a smooth texture matches almost as well a pixel or
+    # two off, so no gap is asked of the background (the object has to beat it by one).
+    behind = good & (on_surface >= in_front)
+    measured = float(np.count_nonzero((front | behind) & hole_s)) / max(int(hole_s.sum()), 1)
+    # Seeds too small to be a region are matching noise.
     m = max(3, odd_px(sc.stranger_min_px / 2 * config_px(1.0, hole.shape) * f))
-    front = cv2.morphologyEx(front.astype(np.uint8), cv2.MORPH_OPEN, np.ones((m, m), np.uint8)) > 0
+    opening = np.ones((m, m), np.uint8)
+    front = cv2.morphologyEx(front.astype(np.uint8), cv2.MORPH_OPEN, opening) > 0
+    behind = cv2.morphologyEx(behind.astype(np.uint8), cv2.MORPH_OPEN, opening) > 0
     if not front.any():
         return DepthLocation(None, None, measured)
+    # Only what was measured marks (the ring too, where measured): a flat part of the hole that no
+    # measured background separates from the object goes with the object (painting a flat margin
+    # costs little; copying a flat part of the object back is a ghost).
     markers = np.zeros(grey_t.shape, np.int32)
-    markers[behind | ~hole_s] = 2
+    markers[behind] = 2
     markers[front] = 1
     cv2.watershed(shown_s, markers)
     grown = markers == 1
     # The watershed leaves its seam (-1) unlabelled: the seam around the object is the object's.
     seam = (markers == -1) & (cv2.dilate(grown.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0)
-    obj = (grown | seam) & hole_s
+    obj = _filled(grown | seam) & hole_s
     # The object's depth where the sweep did not measure it: carried over the object from where it did.
     ratio_map = membrane_fill(np.where(front, front_ratio, 0.0).astype(np.float32), front, obj)
     u, v = project(np.where(obj, ratio_map, 1.0))
@@ -230,7 +239,9 @@ def locate_by_depth(
     gap = odd_px(2.0 * max(sx, sy) * _magnification(u, v, obj) + 1)
     mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (gap, gap)))
     r = odd_px(2.0 * config_px(sc.object_margin_px, source.shape))
-    mask = cv2.dilate(mask, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (r, r)))
+    mask = cv2.dilate(
+        _filled(mask > 0).astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (r, r))
+    )
     in_hole = np.zeros(hole.shape, bool)
     in_hole[rows, cols] = cv2.resize(obj.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) > 0
     in_hole &= hole
@@ -245,3 +256,17 @@ def _magnification(u: np.ndarray, v: np.ndarray, region: np.ndarray) -> float:
         return 1.0
     d = np.hypot(np.diff(u, axis=1)[both], np.diff(v, axis=1)[both])
     return float(np.clip(np.median(d), 0.5, 20.0))
+
+
+def _filled(mask: np.ndarray) -> np.ndarray:
+    """``mask`` with its enclosed holes filled: a flat part inside the object that the stereo left
+    to the background (it matches at every depth) is the object's too.
+
+    >>> ring = np.zeros((7, 7), bool); ring[1:6, 1:6] = True; ring[3, 3] = False
+    >>> bool(_filled(ring)[3, 3])
+    True
+    """
+    contours, _ = cv2.findContours(mask.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    out = np.zeros(mask.shape, np.uint8)
+    cv2.drawContours(out, contours, -1, 1, cv2.FILLED)
+    return out > 0
