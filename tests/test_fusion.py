@@ -257,3 +257,32 @@ def test_the_fuse_stages_mismatch_refusals_are_reported_in_words():
         "32% of the hole was not copied because the references did not line up with your photo "
         "around it there, 68% no reference sees"
     )
+
+
+def test_a_copy_that_disagrees_with_the_other_reference_is_named_in_the_last_line():
+    # Two references cover the hole; the first shows a disc the second does not, and nothing decides
+    # which is right (two cannot outvote each other): the disc is copied (it fits the ring best) and
+    # the last line says that this much of the hole, from that reference, disagrees.
+    from geofill.pipeline import FillReport
+
+    with_disc = _grey(100)
+    with_disc[_DISC] = (200, 30, 30)
+    refs = [_covering(1, with_disc), _covering(2, _grey(104))]
+    fusion = fuse_references(_target(), _HOLE, refs, FillConfig().updated({"fusion.feather_px": 0.0}))
+    assert (fusion.image[_DISC] == (200, 30, 30)).all()
+    disputed = fusion.disputed_fractions(_HOLE, 2)
+    # The disc (0.32 of the hole) but its rim, where a box straddles it or a shift explains it.
+    assert disputed[1] == 0.0 and 0.6 * _DISC.sum() / _HOLE.sum() < disputed[0] <= _DISC.sum() / _HOLE.sum()
+    supplied = fusion.supplied_fractions(_HOLE, 2)
+    report = FillReport(
+        supplied_fraction=supplied, painted_fraction=1 - sum(supplied), disputed_fraction=disputed
+    )
+    assert report.refused_words(["left.jpg", "right.jpg"]) == (
+        f"{100 * disputed[0]:.0f}% of the hole copied from left.jpg disagrees with the other references: "
+        "check it"
+    )
+    # Agreeing references: nothing to check.
+    same = fuse_references(
+        _target(), _HOLE, [_covering(1, _grey(101)), _covering(2, _grey(104))], FillConfig()
+    )
+    assert same.disputed is None
