@@ -48,6 +48,10 @@ _FARTHEST_RATIO = 0.8
 #: reference between two of them; at most this many planes.
 _PLANE_STEP_PX = 1.0
 _MAX_PLANES = 64
+#: The match a hole patch needs in front of the surface to seed the object (zero-mean NCC): where
+#: the reference does not show it (an object only the target shows), the best of ~50 planes in
+#: front reached 0.5-0.8 by chance on the strangers protocol's apple set.
+_FRONT_NCC = 0.8
 #: Ring pixels with a rendered depth needed to fit the surface.
 _MIN_RING_PX = 30
 
@@ -201,7 +205,9 @@ def locate_by_depth(
     # patch matches at many depths and is left to the watershed.
     # The ring around the hole is swept too: where it is measured on the surface it bounds the object.
     good = textured & (np.maximum(in_front, on_surface) > sc.object_min_ncc)
-    front = good & hole_s & (in_front - on_surface > sc.object_ncc_gap)
+    # In front only where it matches very well: the best of the many planes in front of the surface
+    # beats the few on it by chance where the reference does not show the content at all.
+    front = good & hole_s & (in_front - on_surface > sc.object_ncc_gap) & (in_front > _FRONT_NCC)
     # On the surface where it matches best there: a smooth texture matches almost as well a pixel or
     # two off, so no gap is asked of the background (the object has to beat it by one).
     behind = good & (on_surface >= in_front)
@@ -223,9 +229,13 @@ def locate_by_depth(
     grown = markers == 1
     # The watershed leaves its seam (-1) unlabelled: the seam around the object is the object's.
     seam = (markers == -1) & (cv2.dilate(grown.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0)
-    obj = _filled(grown | seam) & hole_s
+    # Textured content that matches nowhere is not in the reference (an object only the target
+    # shows): nothing of it to refuse there. Flat content goes with the region it lies in.
+    unmatched = textured & (np.maximum(in_front, on_surface) <= sc.object_min_ncc)
+    obj = _filled(front | ((grown | seam) & ~unmatched)) & hole_s
     # The object's depth where the sweep did not measure it: carried over the object from where it did.
-    ratio_map = membrane_fill(np.where(front, front_ratio, 0.0).astype(np.float32), front, obj)
+    typical = float(np.median(front_ratio[front]))  # where no measured pixel reaches
+    ratio_map = membrane_fill(np.where(front, front_ratio, 0.0).astype(np.float32), front, obj, typical)
     u, v = project(np.where(obj, ratio_map, 1.0))
     K_full = K_source.resized(source.shape[1], source.shape[0])
     sx, sy = K_full.fx / K_s.fx, K_full.fy / K_s.fy
@@ -255,7 +265,8 @@ def _magnification(u: np.ndarray, v: np.ndarray, region: np.ndarray) -> float:
     if not both.any():
         return 1.0
     d = np.hypot(np.diff(u, axis=1)[both], np.diff(v, axis=1)[both])
-    return float(np.clip(np.median(d), 0.5, 20.0))
+    d = d[np.isfinite(d)]
+    return float(np.clip(np.median(d), 0.5, 20.0)) if d.size else 1.0
 
 
 def _filled(mask: np.ndarray) -> np.ndarray:
