@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 
 from ..config import ScreenConfig
-from ..screen.strangers import shifted_min_diff
+from ..screen.strangers import shifted_min_diff, watershed_region
 from ..utils.distance import known_ring
 from ..utils.resolution import config_px, odd_px
 
@@ -161,11 +161,8 @@ def _cross_strangers(
         markers = np.zeros(hole.shape, np.int32)  # no marker where it does not cover, as in :func:`strangers`
         markers[fits] = 2
         markers[seeded] = 1
-        cv2.watershed(np.ascontiguousarray(images[i].clip(0, 255).astype(np.uint8)), markers)
-        grown = markers == 1
-        # The watershed leaves its seam (-1) unlabelled: the seam around the stranger is refused too.
-        grown |= (markers == -1) & (cv2.dilate(grown.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0)
-        out[i] = grown & alphas[i] & hole
+        # The seam the watershed leaves around the stranger is refused too.
+        out[i] = watershed_region(images[i].clip(0, 255).astype(np.uint8), markers) & alphas[i] & hole
     return out
 
 

@@ -36,6 +36,7 @@ from ..utils.distance import known_ring
 from ..utils.membrane import membrane_fill
 from ..utils.numerics import robust_linear_fit
 from ..utils.resolution import config_px, odd_px
+from .strangers import watershed_region
 
 #: Long side (px) of the hole's window in which the sweep runs: it separates regions tens of pixels
 #: wide, and its cost grows with the pixels times the planes.
@@ -225,14 +226,11 @@ def locate_by_depth(
     markers = np.zeros(grey_t.shape, np.int32)
     markers[behind] = 2
     markers[front] = 1
-    cv2.watershed(shown_s, markers)
-    grown = markers == 1
-    # The watershed leaves its seam (-1) unlabelled: the seam around the object is the object's.
-    seam = (markers == -1) & (cv2.dilate(grown.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0)
+    grown = watershed_region(shown_s, markers)  # with the seam around the object
     # Textured content that matches nowhere is not in the reference (an object only the target
     # shows): nothing of it to refuse there. Flat content goes with the region it lies in.
     unmatched = textured & (np.maximum(in_front, on_surface) <= sc.object_min_ncc)
-    obj = _filled(front | ((grown | seam) & ~unmatched)) & hole_s
+    obj = _filled(front | (grown & ~unmatched)) & hole_s
     # The object's depth where the sweep did not measure it: carried over the object from where it did.
     typical = float(np.median(front_ratio[front]))  # where no measured pixel reaches
     ratio_map = membrane_fill(np.where(front, front_ratio, 0.0).astype(np.float32), front, obj, typical)

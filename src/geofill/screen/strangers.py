@@ -128,3 +128,12 @@ def shifted_min_diff(render: np.ndarray, target: np.ndarray, k: int, reach_px: f
             # = d.mean(axis=2) to the bit (float32, summed in the same order), 3x faster
             np.minimum(best, cv2.blur((d[..., 0] + d[..., 1] + d[..., 2]) / 3, (ks, ks)), out=best)
     return cv2.resize(best, (w, h), interpolation=cv2.INTER_LINEAR)
+
+
+def watershed_region(image: np.ndarray, markers: np.ndarray) -> np.ndarray:
+    """HxW bool: the region OpenCV's watershed on ``image`` (HxWx3 uint8) grows from the pixels
+    ``markers`` labels 1 against those it labels 2 (0: to be decided), with the seam it leaves
+    unlabelled (-1) around that region counted in. ``markers`` (int32) is overwritten."""
+    cv2.watershed(np.ascontiguousarray(image), markers)
+    grown = markers == 1
+    return grown | ((markers == -1) & (cv2.dilate(grown.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0))
