@@ -243,13 +243,13 @@ def locate_by_depth(
     mask = np.zeros(source.shape[:2], np.uint8)
     mask[np.rint(vf[inside]).astype(int), np.rint(uf[inside]).astype(int)] = 1
     # The projected points are a sweep pixel apart (times the reference's magnification): close
-    # the gaps between them, then grow by the object's margin (its silhouette is approximate).
+    # the gaps between them, take each part's convex hull (what the stereo left out inside the
+    # object, a flat or dark part, is the object's too: a ghost costs more than painting a
+    # concavity's background), then grow by the object's margin (its silhouette is approximate).
     gap = odd_px(2.0 * max(sx, sy) * _magnification(u, v, obj) + 1)
     mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (gap, gap)))
     r = odd_px(2.0 * config_px(sc.object_margin_px, source.shape))
-    mask = cv2.dilate(
-        _filled(mask > 0).astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (r, r))
-    )
+    mask = cv2.dilate(_hulls(mask), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (r, r)))
     in_hole = np.zeros(hole.shape, bool)
     in_hole[rows, cols] = cv2.resize(obj.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) > 0
     in_hole &= hole
@@ -279,3 +279,17 @@ def _filled(mask: np.ndarray) -> np.ndarray:
     out = np.zeros(mask.shape, np.uint8)
     cv2.drawContours(out, contours, -1, 1, cv2.FILLED)
     return out > 0
+
+
+def _hulls(mask: np.ndarray) -> np.ndarray:
+    """uint8 ``mask`` with each connected part replaced by its convex hull.
+
+    >>> c = np.zeros((9, 9), np.uint8); c[1:8, 1:3] = 1; c[6:8, 1:8] = 1  # an L
+    >>> int(_hulls(c).sum()) > int(c.sum())
+    True
+    """
+    contours, _ = cv2.findContours(mask.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    out = np.zeros(mask.shape, np.uint8)
+    for c in contours:
+        cv2.fillConvexPoly(out, cv2.convexHull(c), 1)
+    return out
