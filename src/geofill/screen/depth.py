@@ -1,0 +1,295 @@
+"""Geometry decides what is the removed object.
+
+In a removal the hole shows the object, so stereo between the target's hole (as given) and a
+reference measures the object's own depth; the surface behind it is the one the known ring around
+the hole gives (the render's depth there is measured: target and reference both see the ring),
+extended across the hole as a plane fitted robustly to the ring's inverse depth in target camera
+coordinates (a plane's inverse depth is affine in the pixel coordinates). A plane sweep in the
+target's view, over inverse depths from a little behind that surface to far in front of it, finds
+per hole pixel where its patch matches the reference best (zero-mean normalised cross-correlation):
+
+- pixels that match in front of the surface (and clearly better than on it) are the object;
+- pixels that match on the surface are background, however much the brushed margin around the
+  object shows (the margin is in every reference too: only its depth tells it from the object);
+- the rest (flat patches, occluded ones) take the label of their region: OpenCV's watershed on the
+  hole's content grows the two from their seeds, so the object's own edges bound it (a flat part
+  that no measured background bounds goes with the object).
+
+The object's pixels, at their depth (measured, or carried over the object from its measured
+pixels by a membrane), are projected into the reference: that is the object as the reference shows
+it, whatever its other faces, scale or reflections look like there. Render pixels that sample it
+are refused; with several references it is also cut out of the reference's mesh before rendering.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from ..camera import Intrinsics
+from ..composite.inpaint import mask_window
+from ..config import ScreenConfig
+from ..render import RenderResult
+from ..utils.distance import known_ring
+from ..utils.membrane import membrane_fill
+from ..utils.numerics import robust_linear_fit
+from ..utils.resolution import config_px, odd_px
+from .strangers import watershed_region
+
+#: Long side (px) of the hole's window in which the sweep runs: it separates regions tens of pixels
+#: wide, and its cost grows with the pixels times the planes.
+DEPTH_TEST_SIDE = 320
+#: Inverse-depth ratios to the surface swept: from a little behind it (the surface's own error) to
+#: an object at a sixth of the surface's distance.
+_NEAREST_RATIO = 6.0
+_FARTHEST_RATIO = 0.8
+#: The planes are spaced so that a hole pixel moves about this far (px, sweep resolution) in the
+#: reference between two of them; at most this many planes.
+_PLANE_STEP_PX = 1.0
+_MAX_PLANES = 64
+#: The match a hole patch needs in front of the surface to seed the object (zero-mean NCC): where
+#: the reference does not show it (an object only the target shows), the best of ~50 planes in
+#: front reached 0.5-0.8 by chance on the strangers protocol's apple set.
+_FRONT_NCC = 0.8
+#: Ring pixels with a rendered depth needed to fit the surface.
+_MIN_RING_PX = 30
+
+
+@dataclass(frozen=True)
+class DepthLocation:
+    """What the depth test found in one reference. ``source``: HxW bool at the reference's input
+    size, where it shows the removed object (None: nothing there is the object); ``in_hole``: HxW
+    bool at the target's size, the hole pixels whose content lies in front of the surface;
+    ``measured``: the share of the hole whose depth the sweep measured (front or on the surface);
+    ``reason``: why nothing could be decided ('' when the test ran)."""
+
+    source: np.ndarray | None
+    in_hole: np.ndarray | None
+    measured: float = 0.0
+    object_px: int = 0
+    reason: str = ""
+
+    @property
+    def located(self) -> bool:
+        return self.source is not None and bool(self.source.any())
+
+    def summary(self) -> str:
+        if self.reason:
+            return f"object not located: {self.reason}"
+        if not self.located:
+            return f"nothing in front of the surface ({100 * self.measured:.0f}% of the hole measured)"
+        return (
+            f"the object in front of the surface: {self.object_px} px of the hole "
+            f"({100 * self.measured:.0f}% measured)"
+        )
+
+
+def surface_plane(depth: np.ndarray, ring: np.ndarray, rows: slice, cols: slice) -> np.ndarray | None:
+    """(a, b, c) with inverse depth ``a x + b y + c`` (x, y full-image pixels): the plane fitted
+    to ``depth`` (a window's target-camera z, inf/NaN where empty) on ``ring``, robustly (soft-L1
+    residuals, scale 2 % of the ring's median inverse depth: a pole or a step at the ring's edge is
+    an outlier, not a tilt). None with fewer than :data:`_MIN_RING_PX` ring pixels.
+
+    >>> z = 1 / (0.01 * np.arange(40)[None, :] + 0.5 + np.zeros((30, 1)))
+    >>> ring = np.ones((30, 40), bool); ring[10:20, 10:30] = False
+    >>> np.round(surface_plane(z, ring, slice(0, 30), slice(0, 40)), 4).tolist()
+    [0.01, 0.0, 0.5]
+    """
+    ok = ring & np.isfinite(depth) & (depth > 0)
+    ys, xs = np.nonzero(ok)
+    if len(ys) < _MIN_RING_PX:
+        return None
+    step = max(1, len(ys) // 4000)  # a few thousand points fit a plane
+    ys, xs = ys[::step], xs[::step]
+    inv = 1.0 / depth[ys, xs].astype(np.float64)
+    scale = float(np.median(inv))
+    x, y = xs + cols.start, ys + rows.start
+    A = np.column_stack([x, y, np.full(len(x), 1.0)])
+    norm = np.array([1.0 / max(x.max(), 1), 1.0 / max(y.max(), 1), 1.0])  # well-conditioned columns
+    p = robust_linear_fit(A * norm, inv / scale, "soft_l1", 0.02)
+    return p * norm * scale
+
+
+def locate_by_depth(
+    shown: np.ndarray,
+    hole: np.ndarray,
+    source: np.ndarray,
+    render: RenderResult,
+    K_target: Intrinsics,
+    K_source: Intrinsics,
+    T: np.ndarray,
+    sc: ScreenConfig,
+) -> DepthLocation:
+    """The removed object as the reference ``source`` (HxWx3 uint8) shows it, found by depth (see
+    the module docstring). ``shown``: the target as given (its hole shows the object); ``render``:
+    the reference's render (its depth on the ring gives the surface); ``K_*`` and ``T`` (4x4
+    source -> target): the pair's geometry (any resolution: resized here)."""
+    H, W = hole.shape
+    K_t = K_target.resized(W, H)
+    ring_px = config_px(sc.surface_ring_px, hole.shape)
+    rows, cols = mask_window(hole, int(ring_px) + 2)
+    ring = known_ring(hole[rows, cols], ring_px)
+    plane = surface_plane(render.depth[rows, cols], ring & render.alpha[rows, cols], rows, cols)
+    if plane is None:
+        return DepthLocation(None, None, reason="the render shows too little of the hole's surroundings")
+    h, w = rows.stop - rows.start, cols.stop - cols.start
+    f = min(1.0, DEPTH_TEST_SIDE / max(h, w))
+    size = (max(round(w * f), 1), max(round(h * f), 1))
+    hole_s = cv2.resize(hole[rows, cols].astype(np.uint8), size, interpolation=cv2.INTER_NEAREST) > 0
+    shown_s = cv2.resize(np.ascontiguousarray(shown[rows, cols]), size, interpolation=cv2.INTER_AREA)
+    grey_t = cv2.cvtColor(shown_s, cv2.COLOR_RGB2GRAY).astype(np.float32)
+    # The reference at about the sweep's scale (its own size times the target's factor).
+    fs = min(1.0, f * max(W / source.shape[1], H / source.shape[0]))
+    ss = (max(round(source.shape[1] * fs), 1), max(round(source.shape[0] * fs), 1))
+    grey_s = cv2.cvtColor(cv2.resize(source, ss, interpolation=cv2.INTER_AREA), cv2.COLOR_RGB2GRAY)
+    K_s = K_source.resized(*ss)
+    # Full-image coordinates of the sweep's pixel centres, and the surface's inverse depth there.
+    ys = rows.start + (np.arange(size[1], dtype=np.float64) + 0.5) * (h / size[1]) - 0.5
+    xs = cols.start + (np.arange(size[0], dtype=np.float64) + 0.5) * (w / size[0]) - 0.5
+    X, Y = np.meshgrid(xs, ys)
+    inv_surface = np.maximum(plane[0] * X + plane[1] * Y + plane[2], 1e-9)
+    rays = np.stack([(X - K_t.cx) / K_t.fx, (Y - K_t.cy) / K_t.fy, np.ones_like(X)])
+    T_st = np.linalg.inv(T)  # target -> source
+    R, t = T_st[:3, :3], T_st[:3, 3]
+    Rr = np.einsum("ij,jhw->ihw", R, rays)
+
+    def project(ratio: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        z = 1.0 / (inv_surface * ratio)
+        P = Rr * z + t[:, None, None]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u = K_s.fx * P[0] / P[2] + K_s.cx
+            v = K_s.fy * P[1] / P[2] + K_s.cy
+        behind = ~(P[2] > 1e-9)
+        u[behind], v[behind] = -1e6, -1e6
+        return u.astype(np.float32), v.astype(np.float32)
+
+    # Planes spaced by the reference's displacement at the hole's centre.
+    cy, cx = np.argwhere(hole_s).mean(axis=0) if hole_s.any() else (size[1] / 2, size[0] / 2)
+    iy, ix = int(cy), int(cx)
+    u0, v0 = project(_FARTHEST_RATIO)
+    u1, v1 = project(_NEAREST_RATIO)
+    span = float(np.hypot(u1[iy, ix] - u0[iy, ix], v1[iy, ix] - v0[iy, ix]))
+    if not np.isfinite(span) or span < 4 * _PLANE_STEP_PX:
+        return DepthLocation(None, None, reason="the reference sees the hole from about the same place")
+    n = int(np.clip(span / _PLANE_STEP_PX, 8, _MAX_PLANES))
+    # Uniform in inverse depth: the displacement grows linearly with it.
+    ratios = np.linspace(_FARTHEST_RATIO, _NEAREST_RATIO, n)
+    k = 7  # px of the sweep
+    box = (k, k)
+    mean_t = cv2.blur(grey_t, box)
+    var_t = cv2.blur(grey_t * grey_t, box) - mean_t * mean_t
+    src = grey_s.astype(np.float32)
+    # The best match on the surface (or behind it, within its error) and in front of it.
+    on_surface = np.full(grey_t.shape, -2.0, np.float32)
+    in_front = np.full(grey_t.shape, -2.0, np.float32)
+    front_ratio = np.zeros(grey_t.shape, np.float32)
+    margin = 1.0 + sc.object_depth_margin
+    for r in ratios:
+        u, v = project(r)
+        warped = cv2.remap(src, u, v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=-1.0)
+        inside = cv2.blur((warped >= 0).astype(np.float32), box) > 0.999
+        mean_w = cv2.blur(warped, box)
+        var_w = cv2.blur(warped * warped, box) - mean_w * mean_w
+        cov = cv2.blur(warped * grey_t, box) - mean_w * mean_t
+        ncc = cov / np.sqrt(np.maximum(var_w * var_t, 1e-6))
+        ncc = np.where(inside & (var_w > 1.0), ncc, -2.0).astype(np.float32)
+        if r <= margin:
+            np.maximum(on_surface, ncc, out=on_surface)
+        else:
+            better = ncc > in_front
+            in_front = np.where(better, ncc, in_front)
+            front_ratio = np.where(better, np.float32(r), front_ratio)
+    textured = np.sqrt(np.maximum(var_t, 0.0)) > sc.object_min_texture
+    # Each side only where it matches well and clearly better than the other: a flat or repetitive
+    # patch matches at many depths and is left to the watershed.
+    # The ring around the hole is swept too: where it is measured on the surface it bounds the object.
+    good = textured & (np.maximum(in_front, on_surface) > sc.object_min_ncc)
+    # In front only where it matches very well: the best of the many planes in front of the surface
+    # beats the few on it by chance where the reference does not show the content at all.
+    front = good & hole_s & (in_front - on_surface > sc.object_ncc_gap) & (in_front > _FRONT_NCC)
+    # On the surface where it matches best there: a smooth texture matches almost as well a pixel or
+    # two off, so no gap is asked of the background (the object has to beat it by one).
+    behind = good & (on_surface >= in_front)
+    measured = float(np.count_nonzero((front | behind) & hole_s)) / max(int(hole_s.sum()), 1)
+    # Seeds too small to be a region are matching noise.
+    m = max(3, odd_px(sc.stranger_min_px / 2 * config_px(1.0, hole.shape) * f))
+    opening = np.ones((m, m), np.uint8)
+    front = cv2.morphologyEx(front.astype(np.uint8), cv2.MORPH_OPEN, opening) > 0
+    behind = cv2.morphologyEx(behind.astype(np.uint8), cv2.MORPH_OPEN, opening) > 0
+    if not front.any():
+        return DepthLocation(None, None, measured)
+    # Only what was measured marks (the ring too, where measured): a flat part of the hole that no
+    # measured background separates from the object goes with the object (painting a flat margin
+    # costs little; copying a flat part of the object back is a ghost).
+    markers = np.zeros(grey_t.shape, np.int32)
+    markers[behind] = 2
+    markers[front] = 1
+    grown = watershed_region(shown_s, markers)  # with the seam around the object
+    # Textured content that matches nowhere is not in the reference (an object only the target
+    # shows): nothing of it to refuse there. Flat content goes with the region it lies in.
+    unmatched = textured & (np.maximum(in_front, on_surface) <= sc.object_min_ncc)
+    obj = _filled(front | (grown & ~unmatched)) & hole_s
+    # The object's depth where the sweep did not measure it: carried over the object from where it did.
+    typical = float(np.median(front_ratio[front]))  # where no measured pixel reaches
+    ratio_map = membrane_fill(np.where(front, front_ratio, 0.0).astype(np.float32), front, obj, typical)
+    u, v = project(np.where(obj, ratio_map, 1.0))
+    K_full = K_source.resized(source.shape[1], source.shape[0])
+    sx, sy = K_full.fx / K_s.fx, K_full.fy / K_s.fy
+    uf = (u[obj] + 0.5) * sx - 0.5
+    vf = (v[obj] + 0.5) * sy - 0.5
+    inside = (uf >= 0) & (uf < source.shape[1] - 0.5) & (vf >= 0) & (vf < source.shape[0] - 0.5)
+    mask = np.zeros(source.shape[:2], np.uint8)
+    mask[np.rint(vf[inside]).astype(int), np.rint(uf[inside]).astype(int)] = 1
+    # The projected points are a sweep pixel apart (times the reference's magnification): close
+    # the gaps between them, take each part's convex hull (what the stereo left out inside the
+    # object, a flat or dark part, is the object's too: a ghost costs more than painting a
+    # concavity's background), then grow by the object's margin (its silhouette is approximate).
+    gap = odd_px(2.0 * max(sx, sy) * _magnification(u, v, obj) + 1)
+    mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (gap, gap)))
+    r = odd_px(2.0 * config_px(sc.object_margin_px, source.shape))
+    mask = cv2.dilate(_hulls(mask), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (r, r)))
+    in_hole = np.zeros(hole.shape, bool)
+    in_hole[rows, cols] = cv2.resize(obj.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) > 0
+    in_hole &= hole
+    return DepthLocation(mask > 0, in_hole, measured, int(in_hole.sum()))
+
+
+def _magnification(u: np.ndarray, v: np.ndarray, region: np.ndarray) -> float:
+    """Median distance (px) in the reference between horizontally neighbouring sweep pixels of
+    ``region``: how far apart their projections land."""
+    both = region[:, 1:] & region[:, :-1]
+    if not both.any():
+        return 1.0
+    d = np.hypot(np.diff(u, axis=1)[both], np.diff(v, axis=1)[both])
+    d = d[np.isfinite(d)]
+    return float(np.clip(np.median(d), 0.5, 20.0)) if d.size else 1.0
+
+
+def _filled(mask: np.ndarray) -> np.ndarray:
+    """``mask`` with its enclosed holes filled: a flat part inside the object that the stereo left
+    to the background (it matches at every depth) is the object's too.
+
+    >>> ring = np.zeros((7, 7), bool); ring[1:6, 1:6] = True; ring[3, 3] = False
+    >>> bool(_filled(ring)[3, 3])
+    True
+    """
+    contours, _ = cv2.findContours(mask.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    out = np.zeros(mask.shape, np.uint8)
+    cv2.drawContours(out, contours, -1, 1, cv2.FILLED)
+    return out > 0
+
+
+def _hulls(mask: np.ndarray) -> np.ndarray:
+    """uint8 ``mask`` with each connected part replaced by its convex hull.
+
+    >>> c = np.zeros((9, 9), np.uint8); c[1:8, 1:3] = 1; c[6:8, 1:8] = 1  # an L
+    >>> int(_hulls(c).sum()) > int(c.sum())
+    True
+    """
+    contours, _ = cv2.findContours(mask.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    out = np.zeros(mask.shape, np.uint8)
+    for c in contours:
+        cv2.fillConvexPoly(out, cv2.convexHull(c), 1)
+    return out
