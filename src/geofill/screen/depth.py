@@ -49,10 +49,19 @@ _FARTHEST_RATIO = 0.8
 #: reference between two of them; at most this many planes.
 _PLANE_STEP_PX = 1.0
 _MAX_PLANES = 64
-#: The match a hole patch needs in front of the surface to seed the object (zero-mean NCC): where
-#: the reference does not show it (an object only the target shows), the best of ~50 planes in
-#: front reached 0.5-0.8 by chance on the strangers protocol's apple set.
+#: The match a hole patch needs in front of the surface to seed the object (zero-mean NCC, over
+#: the aggregated support).
 _FRONT_NCC = 0.8
+#: Side (px, at the sweep's resolution) of the box over which each plane's patch NCC is averaged
+#: before the best plane is picked: over 7-px patches alone the best of ~50 planes in front matched
+#: 10-20 % of a photo cutout no reference shows at >= 0.8 by chance (and the watershed grew those
+#: seeds over 53-93 % of it); averaged over 9 px, none, while 78-82 % of a box's textured pixels
+#: still matched (`tests/test_screen_depth.py`). Neighbouring patches of a real surface agree on its
+#: depth; chance matches do not.
+_SUPPORT_PX = 9
+#: Planes within this many of the best one belong to its peak; the best match farther away is the
+#: second candidate the best has to beat by ``screen.object_ncc_gap`` (uniqueness).
+_PEAK_PLANES = 3
 #: Ring pixels with a rendered depth needed to fit the surface.
 _MIN_RING_PX = 30
 
@@ -176,39 +185,17 @@ def locate_by_depth(
     n = int(np.clip(span / _PLANE_STEP_PX, 8, _MAX_PLANES))
     # Uniform in inverse depth: the displacement grows linearly with it.
     ratios = np.linspace(_FARTHEST_RATIO, _NEAREST_RATIO, n)
-    k = 7  # px of the sweep
-    box = (k, k)
-    mean_t = cv2.blur(grey_t, box)
-    var_t = cv2.blur(grey_t * grey_t, box) - mean_t * mean_t
-    src = grey_s.astype(np.float32)
-    # The best match on the surface (or behind it, within its error) and in front of it.
-    on_surface = np.full(grey_t.shape, -2.0, np.float32)
-    in_front = np.full(grey_t.shape, -2.0, np.float32)
-    front_ratio = np.zeros(grey_t.shape, np.float32)
-    margin = 1.0 + sc.object_depth_margin
-    for r in ratios:
-        u, v = project(r)
-        warped = cv2.remap(src, u, v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=-1.0)
-        inside = cv2.blur((warped >= 0).astype(np.float32), box) > 0.999
-        mean_w = cv2.blur(warped, box)
-        var_w = cv2.blur(warped * warped, box) - mean_w * mean_w
-        cov = cv2.blur(warped * grey_t, box) - mean_w * mean_t
-        ncc = cov / np.sqrt(np.maximum(var_w * var_t, 1e-6))
-        ncc = np.where(inside & (var_w > 1.0), ncc, -2.0).astype(np.float32)
-        if r <= margin:
-            np.maximum(on_surface, ncc, out=on_surface)
-        else:
-            better = ncc > in_front
-            in_front = np.where(better, ncc, in_front)
-            front_ratio = np.where(better, np.float32(r), front_ratio)
+    volume = ncc_volume(grey_t, grey_s.astype(np.float32), [project(r) for r in ratios])
+    on_surface, in_front, front_ratio, rival = _best_matches(volume, ratios, 1.0 + sc.object_depth_margin)
+    var_t = _box_variance(grey_t)
     textured = np.sqrt(np.maximum(var_t, 0.0)) > sc.object_min_texture
     # Each side only where it matches well and clearly better than the other: a flat or repetitive
     # patch matches at many depths and is left to the watershed.
     # The ring around the hole is swept too: where it is measured on the surface it bounds the object.
     good = textured & (np.maximum(in_front, on_surface) > sc.object_min_ncc)
-    # In front only where it matches very well: the best of the many planes in front of the surface
-    # beats the few on it by chance where the reference does not show the content at all.
-    front = good & hole_s & (in_front - on_surface > sc.object_ncc_gap) & (in_front > _FRONT_NCC)
+    # In front only where it matches very well and uniquely: better by the gap than on the surface
+    # and than at any other depth in front (a repetitive or smooth patch matches at several).
+    front = good & hole_s & (in_front - rival > sc.object_ncc_gap) & (in_front > _FRONT_NCC)
     # On the surface where it matches best there: a smooth texture matches almost as well a pixel or
     # two off, so no gap is asked of the background (the object has to beat it by one).
     behind = good & (on_surface >= in_front)
@@ -254,6 +241,59 @@ def locate_by_depth(
     in_hole[rows, cols] = cv2.resize(obj.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) > 0
     in_hole &= hole
     return DepthLocation(mask > 0, in_hole, measured, int(in_hole.sum()))
+
+
+#: Side (px, at the sweep's resolution) of the patches compared.
+_PATCH_PX = 7
+
+
+def _box_variance(grey: np.ndarray) -> np.ndarray:
+    """Grey variance over each pixel's :data:`_PATCH_PX` box."""
+    box = (_PATCH_PX, _PATCH_PX)
+    mean = cv2.blur(grey, box)
+    return cv2.blur(grey * grey, box) - mean * mean
+
+
+def ncc_volume(
+    grey_t: np.ndarray, grey_s: np.ndarray, maps: list[tuple[np.ndarray, np.ndarray]]
+) -> np.ndarray:
+    """(planes, h, w) float32: the zero-mean NCC of each pixel's :data:`_PATCH_PX` box of ``grey_t``
+    with ``grey_s`` (grey 0-255, float32) warped by each plane's ``(u, v)`` maps; -2 where the warped
+    patch leaves the reference or is flat there. Written with OpenCV's box filter: no library
+    computes a masked NCC against a per-pixel warp."""
+    box = (_PATCH_PX, _PATCH_PX)
+    mean_t = cv2.blur(grey_t, box)
+    var_t = cv2.blur(grey_t * grey_t, box) - mean_t * mean_t
+    out = np.empty((len(maps), *grey_t.shape), np.float32)
+    for i, (u, v) in enumerate(maps):
+        warped = cv2.remap(grey_s, u, v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=-1.0)
+        inside = cv2.blur((warped >= 0).astype(np.float32), box) > 0.999
+        mean_w = cv2.blur(warped, box)
+        var_w = cv2.blur(warped * warped, box) - mean_w * mean_w
+        cov = cv2.blur(warped * grey_t, box) - mean_w * mean_t
+        ncc = cov / np.sqrt(np.maximum(var_w * var_t, 1e-6))
+        out[i] = np.where(inside & (var_w > 1.0), ncc, -2.0)
+    return out
+
+
+def _best_matches(
+    volume: np.ndarray, ratios: np.ndarray, margin: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per pixel, from ``volume`` averaged over :data:`_SUPPORT_PX`: the best NCC on the surface
+    (inverse-depth ratio <= ``margin``), the best in front of it, that one's ratio, and its rival:
+    the better of the best on the surface and the best in front outside its peak (more than
+    :data:`_PEAK_PLANES` planes from it)."""
+    support = (_SUPPORT_PX, _SUPPORT_PX)
+    volume = np.stack([cv2.blur(plane, support) for plane in volume])
+    surface = ratios <= margin
+    on_surface = volume[surface].max(axis=0) if surface.any() else np.full(volume.shape[1:], -2.0, np.float32)
+    front = volume[~surface]
+    best = front.argmax(axis=0)
+    in_front = np.take_along_axis(front, best[None], axis=0)[0]
+    planes = np.arange(len(front))[:, None, None]
+    elsewhere = np.where(np.abs(planes - best[None]) > _PEAK_PLANES, front, -2.0).max(axis=0)
+    rival = np.maximum(on_surface, elsewhere)
+    return on_surface, in_front, ratios[~surface][best].astype(np.float32), rival
 
 
 def _magnification(u: np.ndarray, v: np.ndarray, region: np.ndarray) -> float:
