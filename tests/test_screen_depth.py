@@ -15,7 +15,7 @@ from geofill.config import RenderConfig, ScreenConfig
 from geofill.optimize.stage import Geometry
 from geofill.pipeline import fill
 from geofill.render import render_reference
-from geofill.screen import locate_by_depth, object_in_render
+from geofill.screen import locate_by_depth, locate_together, object_in_render
 from geofill.screen.depth import surface_plane
 from geofill.synthetic import CAMERA_HEIGHT, CEILING_Y, Scene, _Cuboid, _faces, _photo, look_at
 from geofill.utils.distance import known_ring
@@ -25,19 +25,30 @@ K = Intrinsics(300.0, 300.0, 159.5, 119.5, W, H)
 WALL_Z = 8.0
 
 
-@pytest.fixture(scope="module")
-def room():
-    """(target as shown, hole, source, exact geometry, box in the target, box in the source)."""
+def _scene(with_box: bool) -> Scene:
+    """The ray-cast room (its back wall at z = 8), with the box hanging in front of it or without."""
     rng = np.random.default_rng(3)
     room = _Cuboid(
         np.array([0.0, (CAMERA_HEIGHT + CEILING_Y) / 2, (WALL_Z - 3.0) / 2]),
         np.eye(3),
         np.array([4.5, (CAMERA_HEIGHT - CEILING_Y) / 2, (WALL_Z + 3.0) / 2]),
     )
-    box = _Cuboid(np.array([0.1, -0.3, 4.0]), np.eye(3), np.array([0.45, 0.45, 0.2]))
-    scene = Scene(room, [box], _faces(rng, room, inside=True) + _faces(rng, box, inside=False), np.zeros(3))
-    target_pose = look_at(np.array([0.0, -0.3, 0.0]), np.array([0.0, -0.3, 5.0]))
-    source_pose = look_at(np.array([-0.8, -0.3, 0.0]), np.array([0.0, -0.3, 5.0]))
+    boxes = [_Cuboid(np.array([0.1, -0.3, 4.0]), np.eye(3), np.array([0.45, 0.45, 0.2]))] if with_box else []
+    faces = _faces(rng, room, inside=True) + [f for b in boxes for f in _faces(rng, b, inside=False)]
+    return Scene(room, boxes, faces, np.zeros(3))
+
+
+def _pose(x: float) -> np.ndarray:
+    """A camera at ``x`` (m) beside the target's, looking at the same point of the room."""
+    return look_at(np.array([x, -0.3, 0.0]), np.array([0.0, -0.3, 5.0]))
+
+
+@pytest.fixture(scope="module")
+def room():
+    """(target as shown, hole, source, exact geometry, box in the target, box in the source, the
+    margin's wall the source sees)."""
+    scene = _scene(with_box=True)
+    target_pose, source_pose = _pose(0.0), _pose(-0.8)
     target, depth_t = scene.render(K.K, target_pose, W, H)
     source, depth_s = scene.render(K.K, source_pose, W, H)
     box_t, box_s = depth_t < 4.4, depth_s < 4.4  # the box (z 3.8-4.2); floor and ceiling are farther
@@ -112,15 +123,8 @@ def test_a_cutout_no_reference_shows_is_not_taken_for_an_object(photo):
     the NCC was averaged over a support and the best match had to be unique, the best of ~50 planes
     in front matched 10-20 % of such a cutout at >= 0.8 by chance, and the watershed grew those seeds
     over 53-93 % of the hole: that part of every reference was refused."""
-    rng = np.random.default_rng(0)
-    room = _Cuboid(
-        np.array([0.0, (CAMERA_HEIGHT + CEILING_Y) / 2, (WALL_Z - 3.0) / 2]),
-        np.eye(3),
-        np.array([4.5, (CAMERA_HEIGHT - CEILING_Y) / 2, (WALL_Z + 3.0) / 2]),
-    )
-    scene = Scene(room, [], _faces(rng, room, inside=True), np.zeros(3))
-    target_pose = look_at(np.array([0.0, -0.3, 0.0]), np.array([0.0, -0.3, 5.0]))
-    source_pose = look_at(np.array([-0.8, -0.3, 0.0]), np.array([0.0, -0.3, 5.0]))
+    scene = _scene(with_box=False)
+    target_pose, source_pose = _pose(0.0), _pose(-0.8)
     target, _ = scene.render(K.K, target_pose, W, H)
     source, depth_s = scene.render(K.K, source_pose, W, H)
     hole = np.zeros((H, W), bool)
@@ -133,3 +137,28 @@ def test_a_cutout_no_reference_shows_is_not_taken_for_an_object(photo):
     loc = locate_by_depth(shown, hole, source, rendered, K, K, T, ScreenConfig())
     assert not loc.reason
     assert not loc.located and loc.object_px == 0
+
+
+def test_the_object_one_reference_measures_is_located_in_another_that_matches_it_at_no_depth(room):
+    """A solid object seen from so far, so near or so noisy that a reference's patches match it at
+    no depth (the Lund red car from 3 references: 5-7 % of the hole measured against two of them,
+    the car pasted back smaller) is still there in 3D: the depth another reference measured puts it
+    in that reference by projection."""
+    target, hole, source, geometry, _, box_s, _ = room
+    scene, pose_t, pose_b = _scene(with_box=True), _pose(0.0), _pose(0.8)
+    clean_b, depth_b = scene.render(K.K, pose_b, W, H)
+    noisy_b = np.clip(clean_b + np.random.default_rng(1).normal(0, 40, clean_b.shape), 0, 255).astype(
+        np.uint8
+    )
+    T_b = np.linalg.inv(pose_t) @ pose_b
+    sc = ScreenConfig()
+    locations = []
+    for src, geo in ((source, geometry), (noisy_b, Geometry(T_b, K, K, depth_b))):
+        rendered = render_reference(geo, src, hole, RenderConfig(), 30.0).render
+        locations.append(locate_by_depth(target, hole, src, rendered, K, K, geo.T, sc))
+    assert locations[0].located and not locations[1].located  # alone, the noisy reference finds nothing
+    together = locate_together(locations, hole, [source, noisy_b], sc)
+    box_b = depth_b < 4.4
+    assert (together[1].source & box_b).sum() / box_b.sum() > 0.95
+    assert (together[1].source & ~box_b).sum() / box_b.sum() < 0.35  # the object's grown edge
+    assert (together[0].source & box_s).sum() / box_s.sum() > 0.95

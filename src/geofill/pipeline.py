@@ -55,7 +55,15 @@ from .prepare import WorkingViews, prepare_views
 from .progress import Progress
 from .refine import RefinedRender, refine_render
 from .render import ReferenceRender, render_reference
-from .screen import ScreenedRender, locate_by_depth, object_in_render, screen_render, shows_object
+from .screen import (
+    DepthLocation,
+    ScreenedRender,
+    locate_by_depth,
+    locate_together,
+    object_in_render,
+    screen_render,
+    shows_object,
+)
 from .triangulate import TriangulatedPoints, triangulate
 from .utils.jit import warm_up
 from .utils.resolution import config_px
@@ -349,20 +357,46 @@ def render_step(ctx: FillContext, a: ReferenceArtifacts) -> ReferenceRender:
     hole) and, with ``screen.cut_object`` (and several references, for "several"), the reference is
     rendered again without it, so that background it sees behind the object reaches the hole; the
     first render decides whether the reference sees the hole at all and where it would have shown
-    the object. The screen stage reuses the location."""
+    the object. With several references the location and the cut wait for all of them
+    (:func:`object_step`). The screen stage reuses the location."""
     cfg = ctx.cfg
-    margin = render_margin_px(cfg)
-    rendered = render_reference(a.geometry, a.source, ctx.hole, cfg.render, margin)
+    rendered = render_reference(a.geometry, a.source, ctx.hole, cfg.render, render_margin_px(cfg))
     if ctx.shown is None:
         return rendered
     g = a.geometry
     located = locate_by_depth(
         ctx.shown, ctx.hole, a.source, rendered.render, g.K_target, g.K_source, g.T, cfg.screen
     )
-    cut = cfg.screen.cut_object
-    if not located.located or cut == "off" or (cut == "several" and ctx.n_references < 2):
+    if ctx.n_references > 1 or cfg.screen.cut_object != "always":
         return replace(rendered, located=located)
-    opened = render_reference(a.geometry, a.source, ctx.hole, cfg.render, margin, located.source, check=False)
+    return _without_object(ctx, a, rendered, located)
+
+
+def object_step(ctx: FillContext, refs: list[ReferenceArtifacts]) -> list[ReferenceArtifacts]:
+    """With several references, after their render stage: the object located in each from the
+    evidence of all (:func:`geofill.screen.depth.locate_together`) and, with ``screen.cut_object``,
+    each rendered again without it."""
+    ran = [r for r in refs if r.render is not None and r.render.located is not None]
+    located = locate_together(
+        [r.render.located for r in ran], ctx.hole, [r.source for r in ran], ctx.cfg.screen
+    )
+    out = {r.index: r for r in refs}
+    for r, loc in zip(ran, located, strict=True):
+        out[r.index] = replace(r, render=_without_object(ctx, r, r.render, loc))
+    return [out[r.index] for r in refs]
+
+
+def _without_object(
+    ctx: FillContext, a: ReferenceArtifacts, rendered: ReferenceRender, located: DepthLocation
+) -> ReferenceRender:
+    """``rendered`` with ``located``, rendered again without the object where it is located and
+    ``screen.cut_object`` is not off."""
+    if not located.located or ctx.cfg.screen.cut_object == "off":
+        return replace(rendered, located=located)
+    margin = render_margin_px(ctx.cfg)
+    opened = render_reference(
+        a.geometry, a.source, ctx.hole, ctx.cfg.render, margin, located.source, check=False
+    )
     return replace(
         opened, located=located, object_seen=object_in_render(located.source, rendered.render, ctx.hole)
     )
@@ -778,6 +812,15 @@ def run_all_references(
         with prog.stage("multi-view depth") as notes:
             refs, multiview = multiview_step(refs, cfg)
             notes.append(multiview.summary())
+    if many and ctx.shown is not None and last >= names.index("render"):
+        refs = _run_references(ctx, refs, prog, until="render")
+        with prog.stage("removed object") as notes:
+            refs = object_step(ctx, refs)
+            found = sum(
+                r.render is not None and r.render.located is not None and r.render.located.located
+                for r in refs
+            )
+            notes.append(f"located in {found} of {len(refs)} references")
     done = {r.index: r for r in _run_references(ctx, refs, prog, until=until)}
     return [done[i] for i in given], AcrossReferences(registration, multiview)
 

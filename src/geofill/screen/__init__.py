@@ -25,13 +25,14 @@ import numpy as np
 from ..config import FillConfig
 from ..refine import RefinedRender
 from ..render import RenderResult
-from .depth import DepthLocation, locate_by_depth
+from .depth import DepthLocation, locate_by_depth, locate_together
 from .strangers import strangers
 
 __all__ = [
     "DepthLocation",
     "ScreenedRender",
     "locate_by_depth",
+    "locate_together",
     "object_in_render",
     "screen_render",
     "shows_object",

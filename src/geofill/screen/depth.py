@@ -23,7 +23,7 @@ are refused; with several references it is also cut out of the reference's mesh 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -79,6 +79,7 @@ class DepthLocation:
     measured: float = 0.0
     object_px: int = 0
     reason: str = ""
+    sweep: ObjectSweep | None = None  # what the sweep measured, for :func:`locate_together`
 
     @property
     def located(self) -> bool:
@@ -121,6 +122,44 @@ def surface_plane(depth: np.ndarray, ring: np.ndarray, rows: slice, cols: slice)
     return p * norm * scale
 
 
+@dataclass(frozen=True)
+class ObjectSweep:
+    """One reference's plane sweep of the hole, on the target's sweep grid (the hole's window
+    ``rows``/``cols`` resized to ``size``, the same for every reference of a fill): ``front``
+    (seeds of the object, at inverse-depth ratio ``front_ratio`` to the surface), ``behind``
+    (seeds of the background, on the surface), ``unmatched`` (textured content the reference shows
+    at no depth), and what projects a grid pixel at a ratio into the reference (``rays`` rotated
+    into its frame, its translation ``t``, the surface's inverse depth, its intrinsics at
+    ``source_size``)."""
+
+    rows: slice
+    cols: slice
+    hole: np.ndarray
+    shown: np.ndarray
+    front: np.ndarray
+    front_ratio: np.ndarray
+    behind: np.ndarray
+    unmatched: np.ndarray
+    measured: float
+    rays: np.ndarray
+    t: np.ndarray
+    inv_surface: np.ndarray
+    K_source: Intrinsics
+    source_size: tuple[int, int]
+
+    def project(self, ratio: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Where the grid's pixels at inverse-depth ``ratio`` to the surface land in the reference
+        (float32 px at the sweep's scale; -1e6 behind its camera)."""
+        z = 1.0 / (self.inv_surface * ratio)
+        P = self.rays * z + self.t[:, None, None]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u = self.K_source.fx * P[0] / P[2] + self.K_source.cx
+            v = self.K_source.fy * P[1] / P[2] + self.K_source.cy
+        behind = ~(P[2] > 1e-9)
+        u[behind], v[behind] = -1e6, -1e6
+        return u.astype(np.float32), v.astype(np.float32)
+
+
 def locate_by_depth(
     shown: np.ndarray,
     hole: np.ndarray,
@@ -134,7 +173,43 @@ def locate_by_depth(
     """The removed object as the reference ``source`` (HxWx3 uint8) shows it, found by depth (see
     the module docstring). ``shown``: the target as given (its hole shows the object); ``render``:
     the reference's render (its depth on the ring gives the surface); ``K_*`` and ``T`` (4x4
-    source -> target): the pair's geometry (any resolution: resized here)."""
+    source -> target): the pair's geometry (any resolution: resized here). The location keeps its
+    sweep, for :func:`locate_together`."""
+    sweep = sweep_object(shown, hole, source, render, K_target, K_source, T, sc)
+    if isinstance(sweep, str):
+        return DepthLocation(None, None, reason=sweep)
+    return replace(_locate([sweep], hole, [source.shape], sc)[0], sweep=sweep)
+
+
+def locate_together(
+    locations: list[DepthLocation], hole: np.ndarray, sources: list[np.ndarray], sc: ScreenConfig
+) -> list[DepthLocation]:
+    """The object located in every reference from the evidence of all: what any reference's sweep
+    puts in front of the surface seeds it (a solid object one reference matches well, another
+    sees from so far or near that its patches match at no depth), at the depth that reference
+    measured, projected into each of them. ``locations``: :func:`locate_by_depth`'s, one per
+    reference of ``sources``; one whose test could not run keeps its own."""
+    ran = [i for i, loc in enumerate(locations) if loc.sweep is not None]
+    if len(ran) < 2:
+        return locations
+    joint = _locate([locations[i].sweep for i in ran], hole, [sources[i].shape for i in ran], sc)
+    out = list(locations)
+    for i, loc in zip(ran, joint, strict=True):
+        out[i] = replace(loc, sweep=locations[i].sweep)
+    return out
+
+
+def sweep_object(
+    shown: np.ndarray,
+    hole: np.ndarray,
+    source: np.ndarray,
+    render: RenderResult,
+    K_target: Intrinsics,
+    K_source: Intrinsics,
+    T: np.ndarray,
+    sc: ScreenConfig,
+) -> ObjectSweep | str:
+    """The plane sweep of :func:`locate_by_depth` (same arguments), or why it cannot run."""
     H, W = hole.shape
     K_t = K_target.resized(W, H)
     ring_px = config_px(sc.surface_ring_px, hole.shape)
@@ -142,7 +217,7 @@ def locate_by_depth(
     ring = known_ring(hole[rows, cols], ring_px)
     plane = surface_plane(render.depth[rows, cols], ring & render.alpha[rows, cols], rows, cols)
     if plane is None:
-        return DepthLocation(None, None, reason="the render shows too little of the hole's surroundings")
+        return "the render shows too little of the hole's surroundings"
     h, w = rows.stop - rows.start, cols.stop - cols.start
     f = min(1.0, DEPTH_TEST_SIDE / max(h, w))
     size = (max(round(w * f), 1), max(round(h * f), 1))
@@ -153,42 +228,32 @@ def locate_by_depth(
     fs = min(1.0, f * max(W / source.shape[1], H / source.shape[0]))
     ss = (max(round(source.shape[1] * fs), 1), max(round(source.shape[0] * fs), 1))
     grey_s = cv2.cvtColor(cv2.resize(source, ss, interpolation=cv2.INTER_AREA), cv2.COLOR_RGB2GRAY)
-    K_s = K_source.resized(*ss)
     # Full-image coordinates of the sweep's pixel centres, and the surface's inverse depth there.
     ys = rows.start + (np.arange(size[1], dtype=np.float64) + 0.5) * (h / size[1]) - 0.5
     xs = cols.start + (np.arange(size[0], dtype=np.float64) + 0.5) * (w / size[0]) - 0.5
     X, Y = np.meshgrid(xs, ys)
-    inv_surface = np.maximum(plane[0] * X + plane[1] * Y + plane[2], 1e-9)
     rays = np.stack([(X - K_t.cx) / K_t.fx, (Y - K_t.cy) / K_t.fy, np.ones_like(X)])
     T_st = np.linalg.inv(T)  # target -> source
-    R, t = T_st[:3, :3], T_st[:3, 3]
-    Rr = np.einsum("ij,jhw->ihw", R, rays)
-
-    def project(ratio: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        z = 1.0 / (inv_surface * ratio)
-        P = Rr * z + t[:, None, None]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            u = K_s.fx * P[0] / P[2] + K_s.cx
-            v = K_s.fy * P[1] / P[2] + K_s.cy
-        behind = ~(P[2] > 1e-9)
-        u[behind], v[behind] = -1e6, -1e6
-        return u.astype(np.float32), v.astype(np.float32)
-
+    empty = np.zeros(hole_s.shape, bool)
+    sweep = ObjectSweep(
+        rows, cols, hole_s, shown_s, empty, np.zeros(hole_s.shape, np.float32), empty, empty, 0.0,
+        np.einsum("ij,jhw->ihw", T_st[:3, :3], rays), T_st[:3, 3],
+        np.maximum(plane[0] * X + plane[1] * Y + plane[2], 1e-9), K_source.resized(*ss), ss,
+    )  # fmt: skip
     # Planes spaced by the reference's displacement at the hole's centre.
     cy, cx = np.argwhere(hole_s).mean(axis=0) if hole_s.any() else (size[1] / 2, size[0] / 2)
     iy, ix = int(cy), int(cx)
-    u0, v0 = project(_FARTHEST_RATIO)
-    u1, v1 = project(_NEAREST_RATIO)
+    u0, v0 = sweep.project(_FARTHEST_RATIO)
+    u1, v1 = sweep.project(_NEAREST_RATIO)
     span = float(np.hypot(u1[iy, ix] - u0[iy, ix], v1[iy, ix] - v0[iy, ix]))
     if not np.isfinite(span) or span < 4 * _PLANE_STEP_PX:
-        return DepthLocation(None, None, reason="the reference sees the hole from about the same place")
+        return "the reference sees the hole from about the same place"
     n = int(np.clip(span / _PLANE_STEP_PX, 8, _MAX_PLANES))
     # Uniform in inverse depth: the displacement grows linearly with it.
     ratios = np.linspace(_FARTHEST_RATIO, _NEAREST_RATIO, n)
-    volume = ncc_volume(grey_t, grey_s.astype(np.float32), [project(r) for r in ratios])
+    volume = ncc_volume(grey_t, grey_s.astype(np.float32), [sweep.project(r) for r in ratios])
     on_surface, in_front, front_ratio, rival = _best_matches(volume, ratios, 1.0 + sc.object_depth_margin)
-    var_t = _box_variance(grey_t)
-    textured = np.sqrt(np.maximum(var_t, 0.0)) > sc.object_min_texture
+    textured = np.sqrt(np.maximum(_box_variance(grey_t), 0.0)) > sc.object_min_texture
     # Each side only where it matches well and clearly better than the other: a flat or repetitive
     # patch matches at many depths and is left to the watershed.
     # The ring around the hole is swept too: where it is measured on the surface it bounds the object.
@@ -203,31 +268,71 @@ def locate_by_depth(
     # Seeds too small to be a region are matching noise.
     m = max(3, odd_px(sc.stranger_min_px / 2 * config_px(1.0, hole.shape) * f))
     opening = np.ones((m, m), np.uint8)
-    front = cv2.morphologyEx(front.astype(np.uint8), cv2.MORPH_OPEN, opening) > 0
-    behind = cv2.morphologyEx(behind.astype(np.uint8), cv2.MORPH_OPEN, opening) > 0
+    return replace(
+        sweep,
+        front=cv2.morphologyEx(front.astype(np.uint8), cv2.MORPH_OPEN, opening) > 0,
+        front_ratio=front_ratio,
+        behind=cv2.morphologyEx(behind.astype(np.uint8), cv2.MORPH_OPEN, opening) > 0,
+        # Textured content that matches nowhere is not in the reference (an object only the target
+        # shows): nothing of it to refuse there. Flat content goes with the region it lies in.
+        unmatched=textured & (np.maximum(in_front, on_surface) <= sc.object_min_ncc),
+        measured=measured,
+    )
+
+
+def _locate(
+    sweeps: list[ObjectSweep], hole: np.ndarray, shapes: list[tuple[int, ...]], sc: ScreenConfig
+) -> list[DepthLocation]:
+    """The object seeded by every sweep's ``front`` (at the mean of the ratios measured there), grown
+    over the hole against their ``behind``, and projected into each sweep's reference (``shapes``:
+    their input sizes)."""
+    first = sweeps[0]
+    front = np.logical_or.reduce([s.front for s in sweeps])
+    measured = max(s.measured for s in sweeps)
     if not front.any():
-        return DepthLocation(None, None, measured)
+        return [DepthLocation(None, None, s.measured) for s in sweeps]
     # Only what was measured marks (the ring too, where measured): a flat part of the hole that no
     # measured background separates from the object goes with the object (painting a flat margin
     # costs little; copying a flat part of the object back is a ghost).
-    markers = np.zeros(grey_t.shape, np.int32)
-    markers[behind] = 2
+    markers = np.zeros(front.shape, np.int32)
+    markers[np.logical_or.reduce([s.behind for s in sweeps])] = 2
     markers[front] = 1
-    grown = watershed_region(shown_s, markers)  # with the seam around the object
-    # Textured content that matches nowhere is not in the reference (an object only the target
-    # shows): nothing of it to refuse there. Flat content goes with the region it lies in.
-    unmatched = textured & (np.maximum(in_front, on_surface) <= sc.object_min_ncc)
-    obj = _filled(front | (grown & ~unmatched)) & hole_s
-    # The object's depth where the sweep did not measure it: carried over the object from where it did.
-    typical = float(np.median(front_ratio[front]))  # where no measured pixel reaches
-    ratio_map = membrane_fill(np.where(front, front_ratio, 0.0).astype(np.float32), front, obj, typical)
-    u, v = project(np.where(obj, ratio_map, 1.0))
-    K_full = K_source.resized(source.shape[1], source.shape[0])
+    grown = watershed_region(first.shown, markers)  # with the seam around the object
+    unmatched = np.logical_and.reduce([s.unmatched for s in sweeps])
+    obj = _filled(front | (grown & ~unmatched)) & first.hole
+    counts = np.sum([s.front for s in sweeps], axis=0)
+    ratio = np.sum([np.where(s.front, s.front_ratio, 0.0) for s in sweeps], axis=0) / np.maximum(counts, 1)
+    # The object's depth where no sweep measured it: carried over the object from where one did.
+    typical = float(np.median(ratio[front]))  # where no measured pixel reaches
+    ratio_map = membrane_fill(ratio.astype(np.float32), front, obj, typical)
+    h, w = first.rows.stop - first.rows.start, first.cols.stop - first.cols.start
+    in_hole = np.zeros(hole.shape, bool)
+    in_hole[first.rows, first.cols] = (
+        cv2.resize(obj.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) > 0
+    )
+    in_hole &= hole
+    out = []
+    for s, shape in zip(sweeps, shapes, strict=True):
+        source = _projected(s, obj, np.where(obj, ratio_map, 1.0), shape, sc)
+        out.append(
+            DepthLocation(source, in_hole, measured if len(sweeps) > 1 else s.measured, int(in_hole.sum()))
+        )
+    return out
+
+
+def _projected(
+    sweep: ObjectSweep, obj: np.ndarray, ratio: np.ndarray, shape: tuple[int, ...], sc: ScreenConfig
+) -> np.ndarray:
+    """HxW bool at the reference's input ``shape``: the grid's ``obj`` pixels at ``ratio``
+    projected into it, closed, each part's convex hull, grown by ``screen.object_margin_px``."""
+    u, v = sweep.project(ratio)
+    K_s = sweep.K_source
+    K_full = K_s.resized(shape[1], shape[0])
     sx, sy = K_full.fx / K_s.fx, K_full.fy / K_s.fy
     uf = (u[obj] + 0.5) * sx - 0.5
     vf = (v[obj] + 0.5) * sy - 0.5
-    inside = (uf >= 0) & (uf < source.shape[1] - 0.5) & (vf >= 0) & (vf < source.shape[0] - 0.5)
-    mask = np.zeros(source.shape[:2], np.uint8)
+    inside = (uf >= 0) & (uf < shape[1] - 0.5) & (vf >= 0) & (vf < shape[0] - 0.5)
+    mask = np.zeros(shape[:2], np.uint8)
     mask[np.rint(vf[inside]).astype(int), np.rint(uf[inside]).astype(int)] = 1
     # The projected points are a sweep pixel apart (times the reference's magnification): close
     # the gaps between them, take each part's convex hull (what the stereo left out inside the
@@ -235,12 +340,8 @@ def locate_by_depth(
     # concavity's background), then grow by the object's margin (its silhouette is approximate).
     gap = odd_px(2.0 * max(sx, sy) * _magnification(u, v, obj) + 1)
     mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (gap, gap)))
-    r = odd_px(2.0 * config_px(sc.object_margin_px, source.shape))
-    mask = cv2.dilate(_hulls(mask), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (r, r)))
-    in_hole = np.zeros(hole.shape, bool)
-    in_hole[rows, cols] = cv2.resize(obj.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) > 0
-    in_hole &= hole
-    return DepthLocation(mask > 0, in_hole, measured, int(in_hole.sum()))
+    r = odd_px(2.0 * config_px(sc.object_margin_px, shape))
+    return cv2.dilate(_hulls(mask), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (r, r))) > 0
 
 
 #: Side (px, at the sweep's resolution) of the patches compared.
