@@ -299,7 +299,10 @@ def _locate(
     markers[front] = 1
     grown = watershed_region(first.shown, markers)  # with the seam around the object
     unmatched = np.logical_and.reduce([s.unmatched for s in sweeps])
-    obj = _filled(front | (grown & ~unmatched)) & first.hole
+    # One object: the convex hull of its parts in the hole (a flat or bright band across it, which
+    # the stereo cannot place, split a planar cutout on the living room in two, and the band came
+    # back from the reference between the two parts' hulls there).
+    obj = _hull(front | (grown & ~unmatched)) & first.hole
     counts = np.sum([s.front for s in sweeps], axis=0)
     ratio = np.sum([np.where(s.front, s.front_ratio, 0.0) for s in sweeps], axis=0) / np.maximum(counts, 1)
     # The object's depth where no sweep measured it: carried over the object from where one did.
@@ -408,17 +411,17 @@ def _magnification(u: np.ndarray, v: np.ndarray, region: np.ndarray) -> float:
     return float(np.clip(np.median(d), 0.5, 20.0)) if d.size else 1.0
 
 
-def _filled(mask: np.ndarray) -> np.ndarray:
-    """``mask`` with its enclosed holes filled: a flat part inside the object that the stereo left
-    to the background (it matches at every depth) is the object's too.
+def _hull(mask: np.ndarray) -> np.ndarray:
+    """The convex hull of all of ``mask``'s pixels (bool).
 
-    >>> ring = np.zeros((7, 7), bool); ring[1:6, 1:6] = True; ring[3, 3] = False
-    >>> bool(_filled(ring)[3, 3])
+    >>> two = np.zeros((7, 7), bool); two[1:3, 1:6] = True; two[4:6, 1:6] = True
+    >>> bool(_hull(two)[3, 3])
     True
     """
-    contours, _ = cv2.findContours(mask.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    points = cv2.findNonZero(mask.astype(np.uint8))
     out = np.zeros(mask.shape, np.uint8)
-    cv2.drawContours(out, contours, -1, 1, cv2.FILLED)
+    if points is not None:
+        cv2.fillConvexPoly(out, cv2.convexHull(points), 1)
     return out > 0
 
 
