@@ -922,8 +922,9 @@ class ScreenConfig:
     )
     object_ncc_gap: Annotated[float, Range(0, 2)] = setting(
         0.1,
-        "A patch is in front of the surface only where its best match there beats its best match on the "
-        "surface by this much; on the surface where that is within half of it.",
+        "A patch is in front of the surface only where its best match there (NCC averaged over 9 px of the "
+        "sweep) beats by this much both its best match on the surface and its best at any other depth in "
+        "front (more than 3 planes away): a unique match, not the best of many.",
     )
     object_margin_px: Annotated[float, Range(0, 1000)] = setting(
         12.0,
