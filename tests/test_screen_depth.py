@@ -162,3 +162,22 @@ def test_the_object_one_reference_measures_is_located_in_another_that_matches_it
     assert (together[1].source & box_b).sum() / box_b.sum() > 0.95
     assert (together[1].source & ~box_b).sum() / box_b.sum() < 0.35  # the object's grown edge
     assert (together[0].source & box_s).sum() / box_s.sum() > 0.95
+
+
+def test_an_object_flat_on_the_wall_is_located_by_its_look_and_not_copied_back():
+    """What the hole shows lies on the wall itself (a poster, a sign on the brick): every depth puts
+    it on the surface, so the depth test locates nothing, and the reference shows it in place. Its
+    look locates it there (SIFT matches of the hole's content, their homography); before, the poster
+    was copied back whole."""
+    scene = _scene(with_box=False)
+    target, _ = scene.render(K.K, _pose(0.0), W, H)
+    source, _ = scene.render(K.K, _pose(-0.8), W, H)
+    hole = np.zeros((H, W), bool)
+    hole[80:160, 110:210] = True
+    res = fill(target, hole, source)
+    location = res.references[0].render.located
+    assert location.by_appearance and location.object_px == 0  # nothing in front of the wall
+    deep = cv2.erode(hole.astype(np.uint8), np.ones((21, 21), np.uint8)) > 0
+    assert res.references[0].screened.refused_object[deep].mean() > 0.8
+    diff = np.abs(res.image.astype(float) - target.astype(float)).mean(axis=2)
+    assert np.median(diff[deep]) > 8  # painted, not the poster again

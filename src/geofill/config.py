@@ -936,6 +936,17 @@ class ScreenConfig:
         "The depth test measures only hole patches whose grey standard deviation (0-255) is above this: a "
         "flat patch matches at every depth.",
     )
+    min_object_matches: Annotated[int, Range(4, 10_000)] = setting(
+        8,
+        "Where the depth test locates nothing in a reference (an object flat on the surface, or one that "
+        "moves with the camera), SIFT matches between the hole's content and the reference "
+        "(epipolar-consistent with the pair's pose) needed to locate it there by its look.",
+    )
+    object_epipolar_px: Annotated[float, Range(0, 1000)] = setting(
+        10.0,
+        "Those matches must lie within this Sampson distance (px) of the pair's epipolar geometry (loose: "
+        "the pose is estimated from the scene); a homography and a check of the warped content verify them.",
+    )
     stranger_threshold: Annotated[float, Range(0, 255)] = setting(
         45.0,
         "Render pixels around the hole that differ from the target by more than this (mean absolute "

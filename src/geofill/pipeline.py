@@ -58,6 +58,7 @@ from .render import ReferenceRender, render_reference
 from .screen import (
     DepthLocation,
     ScreenedRender,
+    locate_by_appearance,
     locate_by_depth,
     locate_together,
     object_in_render,
@@ -367,7 +368,10 @@ def render_step(ctx: FillContext, a: ReferenceArtifacts) -> ReferenceRender:
     located = locate_by_depth(
         ctx.shown, ctx.hole, a.source, rendered.render, g.K_target, g.K_source, g.T, cfg.screen
     )
-    if ctx.n_references > 1 or cfg.screen.cut_object != "always":
+    if ctx.n_references > 1:
+        return replace(rendered, located=located)
+    located = _or_by_appearance(ctx, a, located)
+    if cfg.screen.cut_object != "always":
         return replace(rendered, located=located)
     return _without_object(ctx, a, rendered, located)
 
@@ -382,8 +386,17 @@ def object_step(ctx: FillContext, refs: list[ReferenceArtifacts]) -> list[Refere
     )
     out = {r.index: r for r in refs}
     for r, loc in zip(ran, located, strict=True):
-        out[r.index] = replace(r, render=_without_object(ctx, r, r.render, loc))
+        out[r.index] = replace(r, render=_without_object(ctx, r, r.render, _or_by_appearance(ctx, r, loc)))
     return [out[r.index] for r in refs]
+
+
+def _or_by_appearance(ctx: FillContext, a: ReferenceArtifacts, located: DepthLocation) -> DepthLocation:
+    """``located``, or where the depth test located nothing, the hole's content located in the
+    reference by its look (:func:`geofill.screen.appearance.locate_by_appearance`)."""
+    if located.located or ctx.shown is None:
+        return located
+    found = locate_by_appearance(ctx.shown, a.source, a.views, a.matches, a.focal, a.pose, ctx.cfg)
+    return located if found is None else replace(located, source=found, by_appearance=True)
 
 
 def _without_object(

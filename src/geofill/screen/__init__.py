@@ -8,6 +8,8 @@ per test:
   the render stage). Content on that surface is used, however much it looks like the brushed margin.
 - :mod:`.strangers` -- a passer-by or a car that moved shows in a reference and not in the target;
   where it reaches beyond the hole, what continues it into the hole is refused. Runs on every fill.
+- :mod:`.appearance` -- where the depth test locates nothing in a reference (an object flat on the
+  surface, or one that moves with the camera), the hole's content located there by its look.
 - Reference pixels the user masked (``source_masks``) are never rendered.
 
 A hole that shows nothing (blank or constant) refuses no object. The vote between several
@@ -25,12 +27,14 @@ import numpy as np
 from ..config import FillConfig
 from ..refine import RefinedRender
 from ..render import RenderResult
+from .appearance import locate_by_appearance
 from .depth import DepthLocation, locate_by_depth, locate_together
 from .strangers import strangers
 
 __all__ = [
     "DepthLocation",
     "ScreenedRender",
+    "locate_by_appearance",
     "locate_by_depth",
     "locate_together",
     "object_in_render",

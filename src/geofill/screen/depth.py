@@ -80,6 +80,9 @@ class DepthLocation:
     object_px: int = 0
     reason: str = ""
     sweep: ObjectSweep | None = None  # what the sweep measured, for :func:`locate_together`
+    #: ``source`` comes from :func:`~geofill.screen.appearance.locate_by_appearance` (the depth test
+    #: located nothing).
+    by_appearance: bool = False
 
     @property
     def located(self) -> bool:
@@ -88,6 +91,8 @@ class DepthLocation:
     def summary(self) -> str:
         if self.reason:
             return f"object not located: {self.reason}"
+        if self.by_appearance:
+            return "nothing in front of the surface; the hole's content located by its look"
         if not self.located:
             return f"nothing in front of the surface ({100 * self.measured:.0f}% of the hole measured)"
         return (
