@@ -180,41 +180,6 @@ def locate_by_depth(
     the reference's render (its depth on the ring gives the surface); ``K_*`` and ``T`` (4x4
     source -> target): the pair's geometry (any resolution: resized here). The location keeps its
     sweep, for :func:`locate_together`."""
-    sweep = sweep_object(shown, hole, source, render, K_target, K_source, T, sc)
-    if isinstance(sweep, str):
-        return DepthLocation(None, None, reason=sweep)
-    return replace(_locate([sweep], hole, [source.shape], sc)[0], sweep=sweep)
-
-
-def locate_together(
-    locations: list[DepthLocation], hole: np.ndarray, sources: list[np.ndarray], sc: ScreenConfig
-) -> list[DepthLocation]:
-    """The object located in every reference from the evidence of all: what any reference's sweep
-    puts in front of the surface seeds it (a solid object one reference matches well, another
-    sees from so far or near that its patches match at no depth), at the depth that reference
-    measured, projected into each of them. ``locations``: :func:`locate_by_depth`'s, one per
-    reference of ``sources``; one whose test could not run keeps its own."""
-    ran = [i for i, loc in enumerate(locations) if loc.sweep is not None]
-    if len(ran) < 2:
-        return locations
-    joint = _locate([locations[i].sweep for i in ran], hole, [sources[i].shape for i in ran], sc)
-    out = list(locations)
-    for i, loc in zip(ran, joint, strict=True):
-        out[i] = replace(loc, sweep=locations[i].sweep)
-    return out
-
-
-def sweep_object(
-    shown: np.ndarray,
-    hole: np.ndarray,
-    source: np.ndarray,
-    render: RenderResult,
-    K_target: Intrinsics,
-    K_source: Intrinsics,
-    T: np.ndarray,
-    sc: ScreenConfig,
-) -> ObjectSweep | str:
-    """The plane sweep of :func:`locate_by_depth` (same arguments), or why it cannot run."""
     H, W = hole.shape
     K_t = K_target.resized(W, H)
     ring_px = config_px(sc.surface_ring_px, hole.shape)
@@ -222,7 +187,7 @@ def sweep_object(
     ring = known_ring(hole[rows, cols], ring_px)
     plane = surface_plane(render.depth[rows, cols], ring & render.alpha[rows, cols], rows, cols)
     if plane is None:
-        return "the render shows too little of the hole's surroundings"
+        return DepthLocation(None, None, reason="the render shows too little of the hole's surroundings")
     h, w = rows.stop - rows.start, cols.stop - cols.start
     f = min(1.0, DEPTH_TEST_SIDE / max(h, w))
     size = (max(round(w * f), 1), max(round(h * f), 1))
@@ -252,7 +217,7 @@ def sweep_object(
     u1, v1 = sweep.project(_NEAREST_RATIO)
     span = float(np.hypot(u1[iy, ix] - u0[iy, ix], v1[iy, ix] - v0[iy, ix]))
     if not np.isfinite(span) or span < 4 * _PLANE_STEP_PX:
-        return "the reference sees the hole from about the same place"
+        return DepthLocation(None, None, reason="the reference sees the hole from about the same place")
     n = int(np.clip(span / _PLANE_STEP_PX, 8, _MAX_PLANES))
     # Uniform in inverse depth: the displacement grows linearly with it.
     ratios = np.linspace(_FARTHEST_RATIO, _NEAREST_RATIO, n)
@@ -273,7 +238,7 @@ def sweep_object(
     # Seeds too small to be a region are matching noise.
     m = max(3, odd_px(sc.stranger_min_px / 2 * config_px(1.0, hole.shape) * f))
     opening = np.ones((m, m), np.uint8)
-    return replace(
+    sweep = replace(
         sweep,
         front=cv2.morphologyEx(front.astype(np.uint8), cv2.MORPH_OPEN, opening) > 0,
         front_ratio=front_ratio,
@@ -283,6 +248,25 @@ def sweep_object(
         unmatched=textured & (np.maximum(in_front, on_surface) <= sc.object_min_ncc),
         measured=measured,
     )
+    return replace(_locate([sweep], hole, [source.shape], sc)[0], sweep=sweep)
+
+
+def locate_together(
+    locations: list[DepthLocation], hole: np.ndarray, sources: list[np.ndarray], sc: ScreenConfig
+) -> list[DepthLocation]:
+    """The object located in every reference from the evidence of all: what any reference's sweep
+    puts in front of the surface seeds it (a solid object one reference matches well, another
+    sees from so far or near that its patches match at no depth), at the depth that reference
+    measured, projected into each of them. ``locations``: :func:`locate_by_depth`'s, one per
+    reference of ``sources``; one whose test could not run keeps its own."""
+    ran = [i for i, loc in enumerate(locations) if loc.sweep is not None]
+    if len(ran) < 2:
+        return locations
+    joint = _locate([locations[i].sweep for i in ran], hole, [sources[i].shape for i in ran], sc)
+    out = list(locations)
+    for i, loc in zip(ran, joint, strict=True):
+        out[i] = replace(loc, sweep=locations[i].sweep)
+    return out
 
 
 def _locate(
