@@ -131,46 +131,6 @@ def _hole_error(fusion) -> float:
     return float(np.abs(fusion.image[_HOLE].astype(int) - 100).max())
 
 
-def test_references_agreeing_in_3d_win_over_a_near_surface_that_matches_the_ring_better():
-    # Two references show the background, slightly off on the ring (104: error 4, score x 0.25);
-    # the third matches the ring exactly but shows a near surface (a disc at half the depth of the
-    # surroundings) inside the hole. Each pair has its own depth scale (x1, x2, x3).
-    far = np.full((_H, _W), 10.0)
-    near = np.where(_DISC, 5.0, 10.0)
-    with_disc = _grey(100)
-    with_disc[_DISC] = 200
-    refs = [
-        _reference(1, _grey(104), far),
-        _reference(2, _grey(104), 2 * far),
-        _reference(3, with_disc, 3 * near),
-    ]
-    plain = FillConfig().updated(
-        {"fusion.consensus_scale": 255.0, "fusion.cross_strangers": "off", "fusion.feather_px": 0.0}
-    )
-    # Without the geometry the near surface scores best (it matches the ring): the disc is pasted.
-    pasted = fuse_references(_target(), _HOLE, refs, plain)
-    assert (pasted.image[_DISC] == 200).all()
-    fusion = fuse_references(_target(), _HOLE, refs, plain.updated({"fusion.geometry": True}))
-    assert _hole_error(fusion) <= 4
-    assert set(np.unique(fusion.labels[_DISC])) <= {1, 2}  # (the third supplies the rest: it fits best)
-
-
-def test_depth_scales_are_matched_on_the_known_ring():
-    from geofill.fuse import common_log_depth
-
-    ring = known_ring(_HOLE, 10.0)
-    refs = [_reference(k, _grey(100), s * np.where(_DISC, 5.0, 10.0)) for k, s in ((1, 1.0), (2, 4.0))]
-    alphas = np.ones((2, _H, _W), bool)
-    logs, inconsistency = common_log_depth(refs, alphas, ring, slice(0, _H), slice(0, _W))
-    np.testing.assert_allclose(logs[1], logs[0], atol=1e-5)  # both in one scale
-    np.testing.assert_allclose(inconsistency, [0.0, 0.0], atol=1e-6)
-    # A render whose depth on the ring does not follow the other's by one scale is inconsistent.
-    rng = np.random.default_rng(0)
-    refs.append(_reference(3, _grey(100), 10.0 * np.exp(rng.normal(0.0, 0.3, (_H, _W)))))
-    logs, inconsistency = common_log_depth(refs, np.ones((3, _H, _W), bool), ring, slice(0, _H), slice(0, _W))
-    assert inconsistency[2] > 0.15 > 0.05 > inconsistency[0]
-
-
 def test_a_stranger_outvoted_by_two_agreeing_references_is_refused():
     # The third reference shows a stranger (a red disc) wholly inside the hole; it also matches the
     # ring best (the others are 1 level off), so without the test it would be pasted.
@@ -230,9 +190,12 @@ def test_the_fuse_stages_refusals_are_reported_as_strangers():
     screened = SimpleNamespace(refused_object=None, refused_masked=None, refused_stranger=beside)
     fusion = Fusion(None, None, np.zeros((_H, _W), np.int16), "test", refused_stranger=_DISC)
     fractions = _refused_fractions(_HOLE, [SimpleNamespace(screened=screened)], fusion)
-    assert fractions == {"stranger": pytest.approx((_DISC.sum() + beside.sum()) / _HOLE.sum())}  # 0.36
-    words = FillReport(refused_fraction=fractions).refused_words()
+    stranger = (_DISC.sum() + beside.sum()) / _HOLE.sum()  # 0.36
+    # No reference supplies anything here (labels 0): the rest of the hole no reference sees.
+    assert fractions == {"stranger": pytest.approx(stranger), "unseen": pytest.approx(1 - stranger)}
+    words = FillReport(refused_fraction=fractions, painted_fraction=1.0).refused_words()
     assert words.startswith("36% of the hole was not copied because the references showed something there")
+    assert words.endswith(", 64% no reference sees")
 
 
 def _covering(index: int, image: np.ndarray, alpha: np.ndarray | None = None):
@@ -287,9 +250,39 @@ def test_the_fuse_stages_mismatch_refusals_are_reported_in_words():
     screened = SimpleNamespace(refused_object=None, refused_masked=None, refused_stranger=None)
     fusion = Fusion(None, None, np.zeros((_H, _W), np.int16), "test", refused_mismatch=_DISC)
     fractions = _refused_fractions(_HOLE, [SimpleNamespace(screened=screened)], fusion)
-    assert fractions == {"mismatch": pytest.approx(_DISC.sum() / _HOLE.sum())}  # 0.32
-    words = FillReport(refused_fraction=fractions).refused_words()
+    share = _DISC.sum() / _HOLE.sum()  # 0.32
+    assert fractions == {"mismatch": pytest.approx(share), "unseen": pytest.approx(1 - share)}
+    words = FillReport(refused_fraction=fractions, painted_fraction=1.0).refused_words()
     assert words == (
         "32% of the hole was not copied because the references did not line up with your photo "
-        "around it there"
+        "around it there, 68% no reference sees"
     )
+
+
+def test_a_copy_that_disagrees_with_the_other_reference_is_named_in_the_last_line():
+    # Two references cover the hole; the first shows a disc the second does not, and nothing decides
+    # which is right (two cannot outvote each other): the disc is copied (it fits the ring best) and
+    # the last line says that this much of the hole, from that reference, disagrees.
+    from geofill.pipeline import FillReport
+
+    with_disc = _grey(100)
+    with_disc[_DISC] = (200, 30, 30)
+    refs = [_covering(1, with_disc), _covering(2, _grey(104))]
+    fusion = fuse_references(_target(), _HOLE, refs, FillConfig().updated({"fusion.feather_px": 0.0}))
+    assert (fusion.image[_DISC] == (200, 30, 30)).all()
+    disputed = fusion.disputed_fractions(_HOLE, 2)
+    # The disc (0.32 of the hole) but its rim, where a box straddles it or a shift explains it.
+    assert disputed[1] == 0.0 and 0.6 * _DISC.sum() / _HOLE.sum() < disputed[0] <= _DISC.sum() / _HOLE.sum()
+    supplied = fusion.supplied_fractions(_HOLE, 2)
+    report = FillReport(
+        supplied_fraction=supplied, painted_fraction=1 - sum(supplied), disputed_fraction=disputed
+    )
+    assert report.refused_words(["left.jpg", "right.jpg"]) == (
+        f"{100 * disputed[0]:.0f}% of the hole copied from left.jpg disagrees with the other references: "
+        "check it"
+    )
+    # Agreeing references: nothing to check.
+    same = fuse_references(
+        _target(), _HOLE, [_covering(1, _grey(101)), _covering(2, _grey(104))], FillConfig()
+    )
+    assert same.disputed is None

@@ -317,9 +317,12 @@ def test_the_object_is_cut_from_the_mesh_with_several_references_by_default():
     sp = make_pair(seed=0, width=200, height=150)
     whole = fill(sp.target, sp.hole, sp.source)
     cut = fill(sp.target, sp.hole, sp.source, FillConfig().updated({"screen.cut_object": "always"}))
-    assert whole.references[0].render.located is None
-    mask, matches = cut.references[0].render.located
-    assert mask is not None and mask.any() and matches > 0
+    assert whole.references[0].render.object_seen is None  # located, but not cut
+    assert whole.references[0].render.located.located
+    located = cut.references[0].render.located
+    assert located.located and located.object_px > 0
     seen = cut.references[0].render.object_seen
-    assert seen.sum() > 0.5 * sp.hole.sum()  # most of the hole would have shown the object
-    assert cut.report.refused_fraction["removed_object"] > 0.5
+    # The hole shows the scene itself: what of it stands in front of the ring's surface is the object
+    # (about half here), what lies on that surface is background.
+    assert seen.sum() > 0.3 * sp.hole.sum()
+    assert cut.report.refused_fraction["removed_object"] > 0.3

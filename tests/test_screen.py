@@ -26,7 +26,10 @@ def plain(pair):
 def test_blank_hole_and_no_mask_refuse_nothing(plain):
     screened, refined = plain.references[0].screened, plain.references[0].refined
     assert screened.image is refined.image and screened.alpha is refined.alpha
-    assert set(plain.report.refused_fraction.values()) == {0.0} and plain.report.refused_words() == ""
+    refused = plain.report.refused_fraction
+    assert {k: v for k, v in refused.items() if k != "unseen"} == {"stranger": 0.0}
+    assert refused["unseen"] == pytest.approx(plain.report.painted_fraction)  # what is painted, no one sees
+    assert "not copied" not in plain.report.refused_words()
     assert plain.report.references[0]["screen"]["refused_masked_fraction"] == 0.0
 
 
@@ -148,7 +151,7 @@ def test_a_dark_stranger_beside_a_gap_in_the_render_is_refused_whole():
 
 
 def test_a_textured_stranger_inside_the_hole_is_outvoted_once_the_shift_cannot_explain_it():
-    from geofill.screen import cross_strangers
+    from geofill.fuse.vote import cross_strangers
 
     target = _BACKGROUND.copy()
     target[_HOLE] = 0

@@ -204,7 +204,7 @@ def cmd_fill(args: argparse.Namespace) -> int:
     if args.debug_dir:
         write_debug(args.debug_dir, result, mask, cfg)
     r = result.report
-    refused = r.refused_words()
+    refused = r.refused_words(names)
     prog.say(
         f"wrote {args.output} in {time.perf_counter() - started:.1f} s: "
         f"{r.filled_words(names)}" + (f"; {refused}" if refused else "")

@@ -766,47 +766,13 @@ class FusionConfig:
         "A reference's candidate region keeps the pixels whose score is at least this fraction of the best "
         "reference's there (the seam is searched only inside such overlaps).",
     )
-    cross_strangers: Literal["off", "decided", "disputed"] = setting(
+    cross_strangers: Literal["off", "decided"] = setting(
         "decided",
         "Refuse a reference's render where it shows what the other references covering the same hole pixels "
         'do not (a stranger inside the hole\'s footprint). "decided": where it is outvoted (three or more '
         "cover) or, where two cover, where the stranger test's refusals nearby or the colours of the hole's "
-        'surroundings say which one is the stranger; "disputed": also every reference that disagrees with '
-        'all the others covering a pixel when nothing decides (the pixel is then painted); "off". Uses the '
+        'surroundings say which one is the stranger; "off". Uses the '
         "``screen.stranger_*`` settings; ``screen.stranger_threshold=0`` turns it off too.",
-    )
-    geometry: bool = setting(
-        False,
-        "Weigh the references by where their surfaces lie in 3D: each render's depth is brought to one "
-        "scale on the known ring around the hole; where references covering a hole pixel disagree, the "
-        "ones whose surfaces agree with others' are preferred (``agreement_gain``) and a surface nearer "
-        "than the hole's surroundings loses to one that is not (``near_penalty``).",
-    )
-    ring_depth_scale: Annotated[float, Range(0, 10, lo_open=True)] = setting(
-        0.1,
-        "A reference's score halves at this depth inconsistency on the known ring (median absolute deviation "
-        "of the log ratio of its render's depth to the others' there, where every pair sees the same "
-        "surface): a wrong pose or depth shows there.",
-    )
-    depth_agreement: Annotated[float, Range(0, 10, lo_open=True)] = setting(
-        0.05,
-        "Two references' surfaces agree at a pixel when their depths (in the common scale) differ by less "
-        "than this (log ratio: 0.05 is 5 %).",
-    )
-    agreement_gain: Annotated[float, Range(1, 100)] = setting(
-        2.0,
-        "Where references disagree in 3D, a reference's score is multiplied by this per other reference "
-        "whose surface agrees with its own (relative to the best-supported reference there).",
-    )
-    near_margin: Annotated[float, Range(0, 10)] = setting(
-        0.1,
-        "A surface is near when its depth is below the hole's surroundings' (the ring's depth carried into "
-        "the hole) by more than this (log ratio).",
-    )
-    near_penalty: Annotated[float, Range(0, 1)] = setting(
-        0.25,
-        "Score factor of a near surface where another reference shows one that is not near (1: no "
-        "preference).",
     )
     max_ring_error: Annotated[float, Range(0, 255)] = setting(
         15.0,
@@ -824,8 +790,8 @@ class FusionConfig:
     average_agreement: Annotated[float, Range(0, 255)] = setting(
         0.0,
         "``feather``/``graphcut``: the references that agree with a pixel's winner (colours within this "
-        "mean absolute difference, 0-255, over a 5-px box; score within ``candidate_ratio``; surfaces within "
-        "``depth_agreement`` with ``geometry``) are averaged with it. 0: the winner alone.",
+        "mean absolute difference, 0-255, over a 5-px box; score within ``candidate_ratio``) are averaged "
+        "with it. 0: the winner alone.",
     )
     parallel: Annotated[int, Range(1, 64), COSTLY] = setting(
         2,
@@ -946,36 +912,48 @@ class ScreenConfig:
         "The hole shows something to remove only where the standard deviation of its grey values (0-255) is "
         "above this: a blanked or constant hole is no object.",
     )
-    min_object_matches: Annotated[int, Range(4, 10_000)] = setting(
-        8,
-        "SIFT matches between the hole's content and a reference (epipolar-consistent with the pair's pose) "
-        "needed to locate the removed object in that reference.",
+    surface_ring_px: Annotated[float, Range(1, 1000)] = setting(
+        24.0,
+        "Width (px) of the known ring around the hole whose rendered depth gives the surface behind the "
+        "removed object (a plane fitted robustly to its inverse depth, carried across the hole).",
     )
-    object_epipolar_px: Annotated[float, Range(0, 1000)] = setting(
-        10.0,
-        "Those matches must lie within this Sampson distance (px) of the pair's epipolar geometry (a static "
-        "object obeys it; loose because the pose is estimated from the scene, and 1 degree of rotation moves "
-        "the lines by ~15 px); the homography and the appearance check then verify them.",
+    object_depth_margin: Annotated[float, Range(0, 10, lo_open=True)] = setting(
+        0.1,
+        "Hole content whose best stereo match with a reference lies nearer than the surface behind it by "
+        "more than this (inverse-depth ratio minus 1: 0.1 is 10 % nearer) is the removed object; content "
+        "that matches on the surface is background and is used.",
+    )
+    object_min_ncc: Annotated[float, Range(-1, 1)] = setting(
+        0.5,
+        "A hole patch's depth counts as measured only where its best match with the reference (zero-mean "
+        "normalised cross-correlation over 7 px of the sweep) is above this.",
+    )
+    object_ncc_gap: Annotated[float, Range(0, 2)] = setting(
+        0.1,
+        "A patch is in front of the surface only where its best match there (NCC averaged over 9 px of the "
+        "sweep) beats by this much both its best match on the surface and its best at any other depth in "
+        "front (more than 3 planes away): a unique match, not the best of many.",
     )
     object_margin_px: Annotated[float, Range(0, 1000)] = setting(
         12.0,
         "The removed object's region located in a reference is grown by this (px): its silhouette there is "
         "only approximate.",
     )
-    appearance_threshold: Annotated[float, Range(0, 255)] = setting(
-        10.0,
-        "Render pixels whose patch differs from the hole's own content by less than this (mean absolute "
-        "difference, 0-255, after the ring's colour correction) show the removed object again; 0 turns the "
-        "appearance test off.",
-    )
-    appearance_patch_px: Annotated[float, Range(1, 100)] = setting(
-        9.0,
-        "Side (px) of the patches the appearance test compares.",
-    )
-    appearance_min_texture: Annotated[float, Range(0, 255)] = setting(
+    object_min_texture: Annotated[float, Range(0, 255)] = setting(
         6.0,
-        "The appearance test judges only patches of the hole's content whose grey standard deviation (0-255) "
-        "is above this: on a flat patch the object and the background cannot be told apart.",
+        "The depth test measures only hole patches whose grey standard deviation (0-255) is above this: a "
+        "flat patch matches at every depth.",
+    )
+    min_object_matches: Annotated[int, Range(4, 10_000)] = setting(
+        8,
+        "Where the depth test locates nothing in a reference (an object flat on the surface, or one that "
+        "moves with the camera), SIFT matches between the hole's content and the reference "
+        "(epipolar-consistent with the pair's pose) needed to locate it there by its look.",
+    )
+    object_epipolar_px: Annotated[float, Range(0, 1000)] = setting(
+        10.0,
+        "Those matches must lie within this Sampson distance (px) of the pair's epipolar geometry (loose: "
+        "the pose is estimated from the scene); a homography and a check of the warped content verify them.",
     )
     stranger_threshold: Annotated[float, Range(0, 255)] = setting(
         45.0,

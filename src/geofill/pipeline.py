@@ -56,7 +56,16 @@ from .prepare import WorkingViews, prepare_views
 from .progress import Progress
 from .refine import RefinedRender, refine_render
 from .render import ReferenceRender, render_reference
-from .screen import ScreenedRender, locate_object, object_in_render, screen_render, shows_object
+from .screen import (
+    DepthLocation,
+    ScreenedRender,
+    locate_by_appearance,
+    locate_by_depth,
+    locate_together,
+    object_in_render,
+    screen_render,
+    shows_object,
+)
 from .triangulate import TriangulatedPoints, triangulate
 from .utils.jit import warm_up
 from .utils.resolution import config_px
@@ -186,11 +195,16 @@ class FillReport:
     references: list[dict[str, Any]] = field(default_factory=list)
     supplied_fraction: list[float] = field(default_factory=list)  # per reference, of the hole
     painted_fraction: float = 1.0  # of the hole, by single-image inpainting
-    #: Of the hole, where a reference's render was not copied: ``removed_object`` (it showed what the
-    #: hole shows, the thing removed), ``masked`` (it came from pixels the user masked), ``stranger``
-    #: (it continued something the target does not show around the hole, or the other references
-    #: covering those pixels contradicted it).
+    #: Of the hole, the painted part by why it was not copied (disjoint; they add up to
+    #: ``painted_fraction``): ``masked`` (a reference covered it from pixels the user masked),
+    #: ``removed_object`` (it showed the removed object), ``stranger`` (it continued something the
+    #: target does not show around the hole, or the other references covering those pixels
+    #: contradicted it), ``mismatch`` (it did not line up with the ring), ``unseen`` (no reference's
+    #: render covers it).
     refused_fraction: dict[str, float] = field(default_factory=dict)
+    #: Per reference, of the hole: what it supplied where its render disagrees with every other
+    #: reference's render covering those pixels (the fuse stage's :attr:`Fusion.disputed`).
+    disputed_fraction: list[float] = field(default_factory=list)
     fusion: dict[str, Any] = field(default_factory=dict)
     #: With several references: per reference, its scale in the common frame and how much of its
     #: hole footprint got measured (not completed) depth (:mod:`geofill.multiview`).
@@ -223,21 +237,23 @@ class FillReport:
         '25% of the hole from a.jpg, 75% painted from its surroundings'
         """
         label = (lambda i: names[i - 1]) if names else (lambda i: f"reference {i}")
-        parts = [
-            f"{100 * f:.0f}% from {label(i)}" for i, f in enumerate(self.supplied_fraction, 1) if f >= 0.005
-        ]
-        if self.painted_fraction >= 0.005 or not parts:
-            parts.append(f"{100 * self.painted_fraction:.0f}% painted from its surroundings")
+        # Rounded together, so that the shares printed add up to 100 % of the hole.
+        shares = rounded_percent([*self.supplied_fraction, self.painted_fraction])
+        parts = [f"{p}% from {label(i)}" for i, p in enumerate(shares[:-1], 1) if p > 0]
+        if shares[-1] > 0 or not parts:
+            parts.append(f"{shares[-1]}% painted from its surroundings")
         return f"{parts[0].replace('% ', '% of the hole ', 1)}" + "".join(f", {p}" for p in parts[1:])
 
     def to_dict(self) -> dict[str, Any]:
         return {f.name: getattr(self, f.name) for f in fields(self)}
 
-    def refused_words(self) -> str:
-        """What was not copied from the references, in plain words ('' when nothing was).
+    def refused_words(self, names: Sequence[str] | None = None) -> str:
+        """Why what was painted was not copied, and where what was copied disagrees with the other
+        references, in plain words ('' when neither). The reasons are disjoint shares of the painted
+        part and, with ``unseen``, add up to it (rounded so that the printed figures do too).
 
-        >>> FillReport(refused_fraction={"removed_object": 0.4, "masked": 0.0}).refused_words()
-        '40% of the hole was not copied because the references showed the removed object'
+        >>> FillReport(painted_fraction=0.5, refused_fraction={"removed_object": 0.4, "unseen": 0.1}).refused_words()
+        '40% of the hole was not copied because the references showed the removed object, 10% no reference sees'
         """
         why = {
             "removed_object": "the references showed the removed object",
@@ -245,12 +261,25 @@ class FillReport:
             "stranger": "the references showed something there that your photo does not show around it",
             "mismatch": "the references did not line up with your photo around it there",
         }
+        keys = [k for k in (*why, "unseen") if k in self.refused_fraction]
+        painted = rounded_percent([*self.supplied_fraction, self.painted_fraction])[-1]
+        shares = rounded_percent([self.refused_fraction[k] for k in keys], painted)
         parts = [
-            f"{100 * f:.0f}% of the hole was not copied because {why[k]}"
-            for k, f in self.refused_fraction.items()
+            f"{p}% no reference sees"
+            if k == "unseen"
+            else f"{p}% of the hole was not copied because {why[k]}"
+            for k, p in zip(keys, shares, strict=True)
+            if p > 0
+        ]
+        if parts and parts[0].endswith("no reference sees"):
+            parts[0] = parts[0].replace("% no", "% of the hole no", 1)
+        label = (lambda i: names[i - 1]) if names else (lambda i: f"reference {i}")
+        warnings = [
+            f"{100 * f:.0f}% of the hole copied from {label(i)} disagrees with the other references: check it"
+            for i, f in enumerate(self.disputed_fraction, 1)
             if f >= 0.005
         ]
-        return "; ".join(parts)
+        return "; ".join([", ".join(parts)] * bool(parts) + warnings)
 
     def to_json(self) -> str:
         return json.dumps(self.to_dict(), indent=2)
@@ -265,6 +294,22 @@ class FillResult:
     #: HxW int16 at target size: -1 outside the hole, 0 painted by single-image inpainting,
     #: k >= 1 supplied by reference k (1-based, in the order given).
     source_map: np.ndarray
+
+
+def rounded_percent(fractions: Sequence[float], total: int | None = None) -> list[int]:
+    """``fractions`` (of the hole) as whole percentages that add up to ``total`` (default: their
+    sum's, rounded); the largest remainders get the leftover points, so that the shares a line
+    prints add up.
+
+    >>> rounded_percent([1 / 3, 1 / 3, 1 / 3]), rounded_percent([0.004, 0.004], 1)
+    ([34, 33, 33], [1, 0])
+    """
+    raw = [100 * f for f in fractions]
+    out = [int(np.floor(r)) for r in raw]
+    left = (round(sum(raw)) if total is None else total) - sum(out)
+    for i in sorted(range(len(raw)), key=lambda i: out[i] - raw[i])[: max(left, 0)]:
+        out[i] += 1
+    return out
 
 
 def prepare_fill(
@@ -309,23 +354,65 @@ def prepare_fill(
 
 
 def render_step(ctx: FillContext, a: ReferenceArtifacts) -> ReferenceRender:
-    """The render stage. With ``screen.cut_object`` (and several references, for "several") and a
-    hole that shows the object to remove, the object is located in the reference and the reference
+    """The render stage. Where the hole shows an object to remove, it is located in the reference
+    by depth (:func:`geofill.screen.depth.locate_by_depth`, on the first render's depth around the
+    hole) and, with ``screen.cut_object`` (and several references, for "several"), the reference is
     rendered again without it, so that background it sees behind the object reaches the hole; the
     first render decides whether the reference sees the hole at all and where it would have shown
-    the object. The screen stage reuses the location."""
+    the object. With several references the location and the cut wait for all of them
+    (:func:`object_step`). The screen stage reuses the location."""
     cfg = ctx.cfg
-    margin = render_margin_px(cfg)
-    rendered = render_reference(a.geometry, a.source, ctx.hole, cfg.render, margin)
-    cut = cfg.screen.cut_object
-    if ctx.shown is None or cut == "off" or (cut == "several" and ctx.n_references < 2):
+    rendered = render_reference(a.geometry, a.source, ctx.hole, cfg.render, render_margin_px(cfg))
+    if ctx.shown is None:
         return rendered
-    located = locate_object(ctx.shown, a.source, a.views, a.matches, a.focal, a.pose, cfg)
-    if located[0] is None or not located[0].any():
+    g = a.geometry
+    located = locate_by_depth(
+        ctx.shown, ctx.hole, a.source, rendered.render, g.K_target, g.K_source, g.T, cfg.screen
+    )
+    if ctx.n_references > 1:
         return replace(rendered, located=located)
-    opened = render_reference(a.geometry, a.source, ctx.hole, cfg.render, margin, located[0], check=False)
+    located = _or_by_appearance(ctx, a, located)
+    if cfg.screen.cut_object != "always":
+        return replace(rendered, located=located)
+    return _without_object(ctx, a, rendered, located)
+
+
+def object_step(ctx: FillContext, refs: list[ReferenceArtifacts]) -> list[ReferenceArtifacts]:
+    """With several references, after their render stage: the object located in each from the
+    evidence of all (:func:`geofill.screen.depth.locate_together`) and, with ``screen.cut_object``,
+    each rendered again without it."""
+    ran = [r for r in refs if r.render is not None and r.render.located is not None]
+    located = locate_together(
+        [r.render.located for r in ran], ctx.hole, [r.source for r in ran], ctx.cfg.screen
+    )
+    out = {r.index: r for r in refs}
+    for r, loc in zip(ran, located, strict=True):
+        out[r.index] = replace(r, render=_without_object(ctx, r, r.render, _or_by_appearance(ctx, r, loc)))
+    return [out[r.index] for r in refs]
+
+
+def _or_by_appearance(ctx: FillContext, a: ReferenceArtifacts, located: DepthLocation) -> DepthLocation:
+    """``located``, or where the depth test located nothing, the hole's content located in the
+    reference by its look (:func:`geofill.screen.appearance.locate_by_appearance`)."""
+    if located.located or ctx.shown is None:
+        return located
+    found = locate_by_appearance(ctx.shown, a.source, a.views, a.matches, a.focal, a.pose, ctx.cfg)
+    return located if found is None else replace(located, source=found, by_appearance=True)
+
+
+def _without_object(
+    ctx: FillContext, a: ReferenceArtifacts, rendered: ReferenceRender, located: DepthLocation
+) -> ReferenceRender:
+    """``rendered`` with ``located``, rendered again without the object where it is located and
+    ``screen.cut_object`` is not off."""
+    if not located.located or ctx.cfg.screen.cut_object == "off":
+        return replace(rendered, located=located)
+    margin = render_margin_px(ctx.cfg)
+    opened = render_reference(
+        a.geometry, a.source, ctx.hole, ctx.cfg.render, margin, located.source, check=False
+    )
     return replace(
-        opened, located=located, object_seen=object_in_render(located[0], rendered.render, ctx.hole)
+        opened, located=located, object_seen=object_in_render(located.source, rendered.render, ctx.hole)
     )
 
 
@@ -354,7 +441,7 @@ def run_reference(
         "optimize": lambda a: optimize_geometry(a.views, a.focal, a.pose, a.depth, a.matches, optimize_config(a, cfg)),
         "render": lambda a: render_step(ctx, a),
         "refine": lambda a: refine_render(ctx.target, ctx.hole, a.source, a.render.render, cfg.refine),
-        "screen": lambda a: screen_render(a.refined, ctx.target, ctx.hole, a.source, ctx.shown, a.exclude, a.views, a.matches, a.focal, a.pose, cfg, a.render.located, a.render.object_seen),
+        "screen": lambda a: screen_render(a.refined, ctx.target, ctx.hole, a.source, ctx.shown, a.exclude, cfg, a.render.located, a.render.object_seen),
     }  # fmt: skip
     for i, (stage, name) in enumerate(REFERENCE_STAGES):
         if a.dropped:
@@ -739,6 +826,15 @@ def run_all_references(
         with prog.stage("multi-view depth") as notes:
             refs, multiview = multiview_step(refs, cfg)
             notes.append(multiview.summary())
+    if many and ctx.shown is not None and last >= names.index("render"):
+        refs = _run_references(ctx, refs, prog, until="render")
+        with prog.stage("removed object") as notes:
+            refs = object_step(ctx, refs)
+            found = sum(
+                r.render is not None and r.render.located is not None and r.render.located.located
+                for r in refs
+            )
+            notes.append(f"located in {found} of {len(refs)} references")
     done = {r.index: r for r in _run_references(ctx, refs, prog, until=until)}
     return [done[i] for i in given], AcrossReferences(registration, multiview)
 
@@ -833,20 +929,35 @@ def scene_depth(ctx: FillContext, refs: list[ReferenceArtifacts]) -> SceneDepth 
     return SceneDepth(best.render.render.depth, best.intrinsics()[0].resized(w, h).K)
 
 
+#: Why a painted hole pixel was not copied, in the order a pixel with several reasons is counted
+#: under (the user's own mask first); each name is a ``ScreenedRender``/``Fusion`` field.
+_REFUSALS = (
+    ("masked", "refused_masked"),
+    ("removed_object", "refused_object"),
+    ("stranger", "refused_stranger"),
+    ("mismatch", "refused_mismatch"),
+)
+
+
 def _refused_fractions(hole: np.ndarray, used: list[ReferenceArtifacts], fusion: Fusion) -> dict[str, float]:
-    """Of the hole, where any reference's render was refused, per reason (the fuse stage's refusals
-    of a reference the others contradict count as strangers)."""
+    """Of the hole, the painted pixels (no reference supplies them) broken down by why: a reason
+    where some reference's render covered the pixel but was refused there (the first of
+    :data:`_REFUSALS` that applies; the fuse stage's refusals of a reference the others contradict
+    count as strangers), ``unseen`` where no reference's render covers it. The parts are disjoint
+    and add up to the painted fraction; a reason is listed (0 where nothing was refused) wherever
+    its test ran."""
+    n = max(int(hole.sum()), 1)
+    left = hole & ~(fusion.labels > 0)
     out = {}
-    for key, name in (
-        ("removed_object", "refused_object"),
-        ("masked", "refused_masked"),
-        ("stranger", "refused_stranger"),
-        ("mismatch", "refused_mismatch"),
-    ):
+    for key, name in _REFUSALS:
         masks = [getattr(r.screened, name, None) for r in used]
         masks = [m for m in [*masks, getattr(fusion, name, None)] if m is not None]
         if masks:
-            out[key] = float(np.count_nonzero(np.logical_or.reduce(masks) & hole)) / max(int(hole.sum()), 1)
+            mine = np.logical_or.reduce(masks) & left
+            out[key] = float(np.count_nonzero(mine)) / n
+            left &= ~mine
+    if used:
+        out["unseen"] = float(np.count_nonzero(left)) / n
     return out
 
 
@@ -872,6 +983,7 @@ def _report(ctx: FillContext, refs: list[ReferenceArtifacts], fusion: Fusion, pr
         supplied_fraction=supplied,
         painted_fraction=1.0 - float(sum(supplied)),
         refused_fraction=_refused_fractions(ctx.hole, used, fusion),
+        disputed_fraction=fusion.disputed_fractions(ctx.hole, len(refs)),
         fusion=fusion.report(),
         inpaint_method=ctx.inpainter.description,
         depth_choice=ctx.depth_choice.reason,

@@ -33,6 +33,7 @@ from .utils.resolution import config_px
 
 if TYPE_CHECKING:
     from .optimize.stage import Geometry
+    from .screen.depth import DepthLocation
 from .utils.jit import njit_cached
 
 #: Barycentric tolerance so pixels on shared edges are not lost between two triangles.
@@ -88,9 +89,9 @@ class ReferenceRender:
     render: RenderResult
     source: np.ndarray
     hole_coverage: float
-    #: The removed object as located in the source before rendering (HxW bool at the source's size,
-    #: or None where not found) and the matches that located it; None when it was not looked for.
-    located: tuple[np.ndarray | None, int] | None = None
+    #: The removed object as the depth test located it in the source before rendering; None when
+    #: it was not looked for (the hole shows nothing to remove).
+    located: DepthLocation | None = None
     #: Where the object left out of the mesh would have shown in the target's hole (HxW bool), or None.
     object_seen: np.ndarray | None = None
 
@@ -103,7 +104,7 @@ class ReferenceRender:
     def summary(self) -> str:
         cut = ""
         if self.object_seen is not None:  # set only where the located object was left out
-            cut = f" (the removed object, {int(self.located[0].sum())} source px, left out of its mesh)"
+            cut = f" (the removed object, {int(self.located.source.sum())} source px, left out of its mesh)"
         return f"source covers {100 * self.hole_coverage:.1f}% of the hole{cut}"
 
     def report(self) -> dict[str, Any]:

@@ -52,3 +52,9 @@ def rescale_points(points: np.ndarray, from_wh: tuple[int, int], to_wh: tuple[in
     """(N, 2) pixel coordinates of an image of size ``from_wh`` (W, H) in an image of size ``to_wh``."""
     s = np.array([to_wh[0] / from_wh[0], to_wh[1] / from_wh[1]])
     return (points + 0.5) * s - 0.5
+
+
+def odd_px(px: float) -> int:
+    """``px`` rounded to an odd integer of at least 1 (rounding down from an even one): the side of a
+    centred box filter."""
+    return max(1, round(px) // 2 * 2 + 1)

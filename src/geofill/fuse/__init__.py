@@ -36,14 +36,15 @@ from typing import TYPE_CHECKING, Any
 import cv2
 import numpy as np
 
-from .composite.inpaint import mask_window
-from .config import FillConfig, FusionConfig
-from .screen import cross_strangers
-from .utils.distance import known_ring
-from .utils.resolution import config_px
+from ..composite.inpaint import mask_window
+from ..config import FillConfig, FusionConfig
+from ..screen.strangers import shifted_min_diff
+from ..utils.distance import known_ring
+from ..utils.resolution import config_px, odd_px
+from .vote import cross_strangers
 
 if TYPE_CHECKING:
-    from .pipeline import ReferenceArtifacts
+    from ..pipeline import ReferenceArtifacts
 
 #: Long side (px) at which the graph cut runs; labels are upsampled to the input resolution.
 _SEAM_MAX_SIDE = 640
@@ -51,8 +52,6 @@ _SEAM_MAX_SIDE = 640
 _DFT_BLUR_TAPS = 160
 #: Sigma (px at a 1280-px long side) of the blur :func:`ring_texture` measures the target's texture by.
 _TEXTURE_BLUR_PX = 2.0
-#: Ring pixels two renders must both cover for their depth scales to be compared pixel by pixel.
-_MIN_RING_DEPTH_PX = 50
 
 
 @dataclass(frozen=True)
@@ -75,12 +74,23 @@ class Fusion:
     #: HxW bool: hole pixels left to the painter because every render covering them differs from the
     #: target on the ring next to them by more than ``max_ring_error`` allows (None: none were).
     refused_mismatch: np.ndarray | None = None
+    #: HxW bool: hole pixels copied from a reference whose render there disagrees with every other
+    #: render covering them (None: none were): nothing decided which is right, so the user should look.
+    disputed: np.ndarray | None = None
 
     def supplied_fractions(self, hole: np.ndarray, n_references: int) -> list[float]:
         """Fraction of the hole each reference (in the order given) supplies."""
         n = max(int(np.count_nonzero(hole)), 1)
         rows, cols = self.window
         counts = np.bincount(self.labels[rows, cols][hole[rows, cols]].ravel(), minlength=n_references + 1)
+        return [float(c) / n for c in counts[1 : n_references + 1]]
+
+    def disputed_fractions(self, hole: np.ndarray, n_references: int) -> list[float]:
+        """Fraction of the hole each reference (in the order given) supplies where it is disputed."""
+        if self.disputed is None:
+            return [0.0] * n_references
+        n = max(int(np.count_nonzero(hole)), 1)
+        counts = np.bincount(self.labels[self.disputed & hole].ravel(), minlength=n_references + 1)
         return [float(c) / n for c in counts[1 : n_references + 1]]
 
     def source_map(self, hole: np.ndarray) -> np.ndarray:
@@ -152,10 +162,6 @@ def fuse_references(
             images[found] = 0
             mismatch = np.zeros(hole.shape, bool)
             mismatch[rows, cols] = found.any(axis=0) & ~alphas.any(axis=0)
-    if fc.geometry:
-        logs, inconsistency = common_log_depth(refs, alphas, ring, rows, cols)
-        scores *= geometry_factor(logs, hole_w, ring, fc)
-        scores *= (0.5 ** (inconsistency / fc.ring_depth_scale)).astype(np.float32)[:, None, None]
     refused = None
     if fc.cross_strangers != "off" and cfg.screen.stranger_threshold > 0:
         evidence = np.stack([_in_window(r.screened.refused_stranger, rows, cols) for r in refs])
@@ -164,8 +170,7 @@ def fuse_references(
         found = cross_strangers(
             np.stack([r.refined.image[rows, cols] for r in refs]).astype(np.float32),
             np.stack([r.refined.alpha[rows, cols] for r in refs]),
-            hole_w, target[rows, cols], evidence, hole.shape, cfg.screen, fc.cross_strangers == "disputed",
-            scores, fc.candidate_ratio,
+            hole_w, target[rows, cols], evidence, hole.shape, cfg.screen, scores, fc.candidate_ratio,
         ) & alphas  # fmt: skip
         if found.any():
             alphas &= ~found
@@ -184,7 +189,7 @@ def fuse_references(
     else:
         members = best[None] == np.arange(len(refs))[:, None, None]
         if fc.average_agreement > 0:
-            members |= _agreeing(images, alphas, scores, best, logs if fc.geometry else None, hole.shape, fc)
+            members |= _agreeing(images, alphas, scores, best, hole.shape, fc)
         weights = _feathered_weights(members, alphas, covered, config_px(fc.feather_px, hole.shape))
     fused_w = np.rint(np.einsum("khw,khwc->hwc", weights, images)).clip(0, 255).astype(np.uint8)
     image = np.zeros(target.shape, target.dtype)  # calloc: the pages outside the window stay untouched
@@ -199,7 +204,43 @@ def fuse_references(
         for k in sorted(range(len(refs)), key=lambda k: index[k])
     )
     method = f"{fc.seams} of {len(refs)} references"
-    return Fusion(image, alpha, labels, method, mean_scores, (rows, cols), refused, mismatch)
+    disputed = None
+    if cfg.screen.stranger_threshold > 0:
+        box = odd_px(5.0 * config_px(1.0, hole.shape))
+        found = _disputed(images, alphas, best, covered & hole_w, box, cfg)
+        if found.any():
+            disputed = np.zeros(hole.shape, bool)
+            disputed[rows, cols] = found
+    return Fusion(image, alpha, labels, method, mean_scores, (rows, cols), refused, mismatch, disputed)
+
+
+def _disputed(
+    images: np.ndarray, alphas: np.ndarray, best: np.ndarray, copied: np.ndarray, k: int, cfg: FillConfig
+) -> np.ndarray:
+    """HxW bool (window): ``copied`` pixels whose winning render (``best``) differs from every other
+    render covering them by more than ``screen.stranger_threshold`` (mean absolute difference over a
+    ``k``-px box), also with either one shifted by up to 12 px (misalignment is not a dispute)."""
+    n = len(images)
+    out = np.zeros(copied.shape, bool)
+    if n < 2:
+        return out
+    box = np.ones((k, k), np.uint8)
+    inner = np.stack([cv2.erode(a.astype(np.uint8), box) > 0 for a in alphas])
+    for w in range(n):
+        mine = copied & (best == w) & inner[w]
+        others = [j for j in range(n) if j != w and (inner[j] & mine).any()]
+        if not others:
+            continue
+        against = np.ones(copied.shape, bool)
+        for j in others:
+            diff = cv2.blur(np.abs(images[w] - images[j]).mean(axis=2), (k, k))
+            apart = diff > cfg.screen.stranger_threshold
+            if apart.any():
+                reach = 12.0 * k / 5.0
+                apart &= shifted_min_diff(images[w], images[j], k, reach) > cfg.screen.cross_shift_threshold
+            against &= apart | ~inner[j]
+        out |= mine & against & np.logical_or.reduce([inner[j] for j in others])
+    return out
 
 
 def _in_window(mask: np.ndarray | None, rows: slice, cols: slice) -> np.ndarray:
@@ -303,96 +344,6 @@ def _consensus(images: np.ndarray, alphas: np.ndarray, scale: float) -> np.ndarr
     return out
 
 
-def common_log_depth(
-    refs: Sequence[ReferenceArtifacts], alphas: np.ndarray, ring: np.ndarray, rows: slice, cols: slice
-) -> tuple[np.ndarray, np.ndarray]:
-    """(K, H, W) float32 log of each render's depth in the window, all in one scale (NaN where a
-    render has none), and (K,) each render's depth inconsistency on the ring (log ratio).
-
-    Each pair's depth has its own scale; the known ring around the hole is seen by the target and
-    by every reference, so there two renders' depths differ by their scales' ratio only when both
-    pairs' geometry is right. A render's inconsistency is the smallest, over the others, median
-    absolute deviation of the log ratio on the ring pixels both cover (one right partner is
-    enough). Each render is brought to the scale of the most consistent one by the median log
-    ratio (a render sharing too few ring pixels with it keeps its own scale, offset by the ring
-    medians of the two, and counts as consistent: nothing measures it)."""
-    n = len(refs)
-    logs = np.full(alphas.shape, np.nan, np.float32)
-    for k, r in enumerate(refs):
-        z = r.refined.render.depth[rows, cols]
-        ok = alphas[k] & np.isfinite(z) & (z > 0)
-        logs[k][ok] = np.log(z[ok])
-    valid = np.isfinite(logs) & ring[None]
-    shift = np.full((n, n), np.nan)
-    spread = np.full((n, n), np.nan)
-    for k in range(n):
-        for j in range(k + 1, n):
-            both = valid[k] & valid[j]
-            if both.sum() >= _MIN_RING_DEPTH_PX:
-                d = logs[j][both] - logs[k][both]
-                shift[k, j] = m = float(np.median(d))
-                shift[j, k] = -m
-                spread[k, j] = spread[j, k] = float(np.median(np.abs(d - m)))
-    measured = np.isfinite(spread).any(axis=1)
-    inconsistency = np.where(measured, np.nanmin(np.where(measured[:, None], spread, np.nan), axis=1), 0.0)
-    if not measured.any():
-        return logs, np.zeros(n)
-    c = int(np.argmin(np.where(measured, inconsistency, np.inf)))
-    for k in range(n):
-        if np.isfinite(shift[k, c]):
-            logs[k] += shift[k, c]
-        elif valid[k].any() and valid[c].any():
-            logs[k] += np.median(logs[c][valid[c]]) - np.median(logs[k][valid[k]])
-    return logs, inconsistency
-
-
-def geometry_factor(logs: np.ndarray, hole: np.ndarray, ring: np.ndarray, cfg: FusionConfig) -> np.ndarray:
-    """(K, H, W) factor on the references' scores from where their surfaces lie in 3D (``logs``:
-    :func:`common_log_depth`). Where two or more cover a hole pixel and not all their surfaces agree
-    (log depths within ``depth_agreement``), each score is multiplied by ``agreement_gain`` per
-    other reference whose surface agrees with its own, relative to the best-supported one there;
-    and a surface nearer than the hole's surroundings (the ring's depth interpolated into the hole)
-    by more than ``near_margin`` loses ``near_penalty`` where another reference shows a surface
-    that is not. 1 elsewhere."""
-    out = np.ones(logs.shape, np.float32)
-    valid = np.isfinite(logs)
-    many = hole & (valid.sum(axis=0) >= 2)
-    if not many.any():
-        return out
-    lv = logs[:, many]  # (K, N)
-    ok = valid[:, many]
-    diff = np.abs(lv[:, None] - lv[None])  # (K, K, N)
-    agree = (diff < cfg.depth_agreement) & ok[:, None] & ok[None]
-    support = agree.sum(axis=1) - 1  # others agreeing with each (itself excluded)
-    support = np.where(ok, support, -1)
-    disputed = (support < ok.sum(axis=0) - 1).any(axis=0)  # some pair disagrees
-    top = support.max(axis=0)
-    f = np.where(disputed[None] & ok, cfg.agreement_gain ** (support - top[None]).astype(np.float32), 1.0)
-    if cfg.near_penalty < 1.0:
-        surround = _surroundings_log_depth(logs, hole, ring)[many]
-        near = ok & (lv < surround[None] - cfg.near_margin)
-        other = (ok & ~near).any(axis=0)
-        f = np.where(near & other[None], f * cfg.near_penalty, f)
-    out[:, many] = f
-    return out
-
-
-def _surroundings_log_depth(logs: np.ndarray, hole: np.ndarray, ring: np.ndarray) -> np.ndarray:
-    """(H, W) log depth of the hole's surroundings: the references' median on the ring, carried into
-    the hole by normalised Gaussian smoothing over a tenth of the window (each part of the hole gets
-    the depth of the ring nearest to it; far from any, the ring's overall median)."""
-    on_ring = ring & np.isfinite(logs).any(axis=0)
-    if not on_ring.any():
-        return np.full(hole.shape, np.inf, np.float32)
-    median = np.zeros(hole.shape, np.float32)
-    median[on_ring] = np.nanmedian(logs[:, on_ring], axis=0)
-    overall = float(np.median(median[on_ring]))
-    sigma = 0.1 * max(hole.shape)
-    w = on_ring.astype(np.float32)
-    eps = 1e-3
-    return (gaussian_blur(median * w, sigma) + eps * overall) / (gaussian_blur(w, sigma) + eps)
-
-
 def _window(refs: Sequence[ReferenceArtifacts], hole: np.ndarray) -> tuple[slice, slice]:
     """The smallest window holding the hole and every reference's render window (the pipeline's
     render windows hold the hole already)."""
@@ -470,32 +421,23 @@ def _agreeing(
     alphas: np.ndarray,
     scores: np.ndarray,
     best: np.ndarray,
-    logs: np.ndarray | None,
     shape: tuple[int, int],
     cfg: FusionConfig,
 ) -> np.ndarray:
     """(K, H, W) bool: the references that agree with the winner ``best`` at each pixel, and are
     averaged with it: they cover the pixel, score at least ``candidate_ratio`` of the winner, their
     colours differ from the winner's by less than ``average_agreement`` (mean absolute difference
-    over a 5-px box, 0-255) and, with ``logs`` (:func:`common_log_depth`), their surfaces lie within
-    ``depth_agreement`` of the winner's. Averaging renders that agree cancels their independent
+    over a 5-px box, 0-255). Averaging renders that agree cancels their independent
     errors (resampling, colour correction, small misalignment)."""
     take = lambda a: np.take_along_axis(a, best[None], 0)[0]  # noqa: E731 - the winner's value
     win = np.take_along_axis(images, best[None, ..., None], 0)[0]
-    k = _odd_px(5.0 * config_px(1.0, shape))
+    k = odd_px(5.0 * config_px(1.0, shape))
     out = alphas & (scores >= cfg.candidate_ratio * take(scores)[None])
     for j in range(len(images)):
         if out[j].any():
             diff = cv2.blur(np.abs(images[j] - win).mean(axis=2), (k, k))
             out[j] &= diff < cfg.average_agreement
-    if logs is not None:
-        with np.errstate(invalid="ignore"):
-            out &= ~(np.abs(logs - take(logs)[None]) >= cfg.depth_agreement)
     return out
-
-
-def _odd_px(px: float) -> int:
-    return max(1, round(px) // 2 * 2 + 1)
 
 
 def _feathered_weights(
