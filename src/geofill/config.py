@@ -703,8 +703,7 @@ class InpaintConfig:
         "\"exemplar\", in reference fills: fit planes to the target's depth around the hole (the references' "
         "renders), split the surfaces by them (the wall's foot where the planes meet) and paint each plane "
         "in its own rectified (head-on) coordinates, so tiles keep their size and direction under "
-        "perspective. Off by default: on 8 DEV restoration pairs it costs hole PSNR and time "
-        "(docs/architecture.md, 'Planes from depth').",
+        "perspective. Slower; off by default (docs/architecture.md, 'Planes from depth').",
     )
     lama_model: LocalPath | None = setting(
         None,

@@ -392,12 +392,18 @@ def object_step(ctx: FillContext, refs: list[ReferenceArtifacts]) -> list[Refere
 
 
 def _or_by_appearance(ctx: FillContext, a: ReferenceArtifacts, located: DepthLocation) -> DepthLocation:
-    """``located``, or where the depth test located nothing, the hole's content located in the
-    reference by its look (:func:`geofill.screen.appearance.locate_by_appearance`)."""
-    if located.located or ctx.shown is None:
+    """``located`` joined with the hole's content located in the reference by its look
+    (:func:`geofill.screen.appearance.locate_by_appearance`): the depth test misses an object flat
+    on the surface, and with one reference it can take a part of the object for a look-alike
+    elsewhere, so what either finds is the object."""
+    if ctx.shown is None:
         return located
     found = locate_by_appearance(ctx.shown, a.source, a.views, a.matches, a.focal, a.pose, ctx.cfg)
-    return located if found is None else replace(located, source=found, by_appearance=True)
+    if found is None or not found.any():
+        return located
+    if not located.located:
+        return replace(located, source=found, by_appearance=True)
+    return replace(located, source=located.source | found)
 
 
 def _without_object(
