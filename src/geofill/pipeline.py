@@ -393,20 +393,11 @@ def object_step(ctx: FillContext, refs: list[ReferenceArtifacts]) -> list[Refere
 
 def _or_by_appearance(ctx: FillContext, a: ReferenceArtifacts, located: DepthLocation) -> DepthLocation:
     """``located``, or where the depth test located nothing, the hole's content located in the
-    reference by its look (:func:`geofill.screen.appearance.locate_by_appearance`); with one
-    reference, what either finds. The depth test misses an object flat on the surface; with one
-    reference its evidence is one view, which can take a part of the object for a look-alike
-    elsewhere (the Lund bush's upper half for a smaller bush along the wall), while several
-    references locate the object together. Joined with several references too, the look cost
-    0.66 dB on ``strangers`` (fox upper, all references: 27.17 -> 23.70 dB)."""
-    if ctx.shown is None or (located.located and ctx.n_references > 1):
+    reference by its look (:func:`geofill.screen.appearance.locate_by_appearance`)."""
+    if located.located or ctx.shown is None:
         return located
     found = locate_by_appearance(ctx.shown, a.source, a.views, a.matches, a.focal, a.pose, ctx.cfg)
-    if found is None or not found.any():
-        return located
-    if not located.located:
-        return replace(located, source=found, by_appearance=True)
-    return replace(located, source=located.source | found)
+    return located if found is None else replace(located, source=found, by_appearance=True)
 
 
 def _without_object(
