@@ -54,19 +54,19 @@ def continue_lines(image: np.ndarray, hole: np.ndarray, patch_px: int) -> np.nda
     found = (found.reshape(-1, 4).astype(np.float64) + 0.5) * f - 0.5
     reach = _REACH_PATCHES * patch_px
     distance = cv2.distanceTransform(known.astype(np.uint8), cv2.DIST_L2, 3)
+    # The end nearer the hole must touch it, the other be away from it (a segment along the hole's
+    # edge touches it all along). Tested on all segments at once: a cathedral front gives LSD
+    # thousands, and one at a time this took 0.8 s of a Berlin fill.
+    a, b = found[:, :2], found[:, 2:]
+    da, db = _at(distance, a), _at(distance, b)
+    keep = (np.linalg.norm(b - a, axis=1) >= _MIN_LENGTH_PATCHES * patch_px) & (
+        (np.minimum(da, db) <= reach) & (np.maximum(da, db) >= 2 * reach)
+    )
     ends = []
-    for x0, y0, x1, y1 in found:
-        a, b = np.array([x0, y0]), np.array([x1, y1])
-        length = float(np.linalg.norm(b - a))
-        if length < _MIN_LENGTH_PATCHES * patch_px:
-            continue
-        # The end nearer the hole must touch it, the other be away from it (a segment along the
-        # hole's edge touches it all along).
-        da, db = _at(distance, a), _at(distance, b)
-        near, far = (a, b) if da <= db else (b, a)
-        if min(da, db) > reach or max(da, db) < 2 * reach or _crosses(hole, near, far):
-            continue
-        ends.append((near, far))
+    for k in np.flatnonzero(keep):
+        near, far = (a[k], b[k]) if da[k] <= db[k] else (b[k], a[k])
+        if not _crosses(hole, near, far):
+            ends.append((near, far))
     for i in range(len(ends)):
         for j in range(i + 1, len(ends)):
             line = _collinear(ends[i], ends[j])
@@ -97,10 +97,11 @@ def continue_lines(image: np.ndarray, hole: np.ndarray, patch_px: int) -> np.nda
     return drawn
 
 
-def _at(a: np.ndarray, p: np.ndarray) -> float:
-    y = int(np.clip(round(p[1]), 0, a.shape[0] - 1))
-    x = int(np.clip(round(p[0]), 0, a.shape[1] - 1))
-    return float(a[y, x])
+def _at(a: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """``a`` at the nearest pixel to each point of ``p`` (Nx2, x then y), clipped to the image."""
+    y = np.clip(np.rint(p[:, 1]), 0, a.shape[0] - 1).astype(int)
+    x = np.clip(np.rint(p[:, 0]), 0, a.shape[1] - 1).astype(int)
+    return a[y, x]
 
 
 def _crosses(hole: np.ndarray, a: np.ndarray, b: np.ndarray) -> bool:
