@@ -594,7 +594,9 @@ def fill(
         fusion = fuse_references(ctx.target, ctx.hole, [r for r in refs if r.usable], cfg)
         notes.append(fusion.summary())
     with prog.stage("composite") as notes:
-        image = composite(ctx, fusion, scene_depth(ctx, [r for r in refs if r.usable]))
+        # The depth is only read by a painter that paints by planes (``inpaint.planes``).
+        depth = scene_depth(ctx, [r for r in refs if r.usable]) if ctx.inpainter.run_depth else None
+        image = composite(ctx, fusion, depth)
         notes.append(f"single-image inpainting: {ctx.inpainter.description}")
     report = _report(ctx, refs, fusion, prog)
     report.registration = across.registration
