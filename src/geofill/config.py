@@ -954,6 +954,18 @@ class ScreenConfig:
         "Those matches must lie within this Sampson distance (px) of the pair's epipolar geometry (loose: "
         "the pose is estimated from the scene); a homography and a check of the warped content verify them.",
     )
+    surface_min_ncc: Annotated[float, Range(-1, 1)] = setting(
+        0.6,
+        "The hole's content that its ring does not explain (an object on the surface, or the part of one "
+        "that the depth test did not place) is the object in a reference where that reference, warped onto "
+        "the hole by the ring surface's homography, shows it: a normalised cross-correlation of it and its "
+        "outline of at least this. Lower finds blurred copies, but also background that resembles it.",
+    )
+    surface_search_px: Annotated[float, Range(0, 1000)] = setting(
+        16.0,
+        "That match is searched within this distance (px) of where the surface puts it (the pose and the "
+        "ring's depth are estimates); a look-alike farther along is not the object.",
+    )
     stranger_threshold: Annotated[float, Range(0, 255)] = setting(
         45.0,
         "Render pixels around the hole that differ from the target by more than this (mean absolute "

@@ -8,8 +8,11 @@ per test:
   the render stage). Content on that surface is used, however much it looks like the brushed margin.
 - :mod:`.strangers` -- a passer-by or a car that moved shows in a reference and not in the target;
   where it reaches beyond the hole, what continues it into the hole is refused. Runs on every fill.
-- :mod:`.appearance` -- where the depth test locates nothing in a reference (an object flat on the
-  surface, or one that moves with the camera), the hole's content located there by its look.
+- :mod:`.surface` -- what the hole shows that its ring does not explain (an object flat on the
+  surface, or the part of one the depth test did not place), found in the reference where the ring
+  surface's homography puts it.
+- :mod:`.appearance` -- where neither locates anything in a reference (an object that moves with
+  the camera), the hole's content located there by its look.
 - Reference pixels the user masked (``source_masks``) are never rendered.
 
 A hole that shows nothing (blank or constant) refuses no object. The vote between several
@@ -30,12 +33,14 @@ from ..render import RenderResult
 from .appearance import locate_by_appearance
 from .depth import DepthLocation, locate_by_depth, locate_together
 from .strangers import strangers
+from .surface import locate_on_surface
 
 __all__ = [
     "DepthLocation",
     "ScreenedRender",
     "locate_by_appearance",
     "locate_by_depth",
+    "locate_on_surface",
     "locate_together",
     "object_in_render",
     "screen_render",

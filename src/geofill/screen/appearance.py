@@ -1,14 +1,15 @@
-"""Where the depth test locates nothing: the hole's content located in the reference by its look.
+"""Where neither the depth test nor the surface test locates anything: the hole's content located
+in the reference by its look.
 
-Geometry cannot tell from the surface an object that lies flat on it (a sign on a wall, a manhole
-cover) or one that moves with the camera (the car ahead, a rider filmed from a car): their depth is
-the surface's, so the reference's copy of them is background to the depth test. Their look still
-finds them: SIFT matches of the hole's content in the reference, consistent with the pair's
-epipolar geometry, give a homography; where the warped content equals the reference, the reference
-shows it. This refuses the brushed margin's background along with the object (the margin is in the
-reference too), which is why it runs only where the depth test found nothing (on the real panel the
-Lund wall sign, the manhole, the driving car and the scooter rider came back without it).
-"""
+Geometry cannot tell from the surface an object that moves with the camera (the car ahead, a rider
+filmed from a car): its depth is the surface's, and the surface test (:mod:`.surface`) does not find
+it where the ring's surface puts it, since it moved with the camera. Its look still finds it: SIFT
+matches of the hole's content in the reference, consistent with the pair's epipolar geometry, give a
+homography; where the warped content equals the reference, the reference shows it. This refuses the
+brushed margin's background along with the object (the margin is in the reference too), which is
+why it runs last. It misses an object on a repetitive surface: the Lund manhole's 19 keypoints kept
+2 matches against the whole reference's cobbles (the ratio test), short of
+``screen.min_object_matches``; the surface test finds it."""
 
 from __future__ import annotations
 

@@ -83,6 +83,10 @@ class DepthLocation:
     #: ``source`` comes from :func:`~geofill.screen.appearance.locate_by_appearance` (the depth test
     #: located nothing).
     by_appearance: bool = False
+    #: ``source`` comes from :func:`~geofill.screen.surface.locate_on_surface` (the depth test
+    #: located nothing): the hole's content that its ring does not explain, shown by the reference on
+    #: the ring's surface.
+    on_surface: bool = False
 
     @property
     def located(self) -> bool:
@@ -95,6 +99,8 @@ class DepthLocation:
             return "nothing in front of the surface; the hole's content located by its look"
         if not self.located:
             return f"nothing in front of the surface ({100 * self.measured:.0f}% of the hole measured)"
+        if self.on_surface:
+            return "nothing in front of the surface; what the ring does not explain found on the surface"
         return (
             f"the object in front of the surface: {self.object_px} px of the hole "
             f"({100 * self.measured:.0f}% measured)"
@@ -305,20 +311,20 @@ def _locate(
     in_hole &= hole
     out = []
     for s, shape in zip(sweeps, shapes, strict=True):
-        source = _projected(s, obj, np.where(obj, ratio_map, 1.0), shape, sc)
+        u, v = s.project(np.where(obj, ratio_map, 1.0))
+        source = region_in_reference(u, v, obj, s.K_source, shape, sc)
         out.append(
             DepthLocation(source, in_hole, measured if len(sweeps) > 1 else s.measured, int(in_hole.sum()))
         )
     return out
 
 
-def _projected(
-    sweep: ObjectSweep, obj: np.ndarray, ratio: np.ndarray, shape: tuple[int, ...], sc: ScreenConfig
+def region_in_reference(
+    u: np.ndarray, v: np.ndarray, obj: np.ndarray, K_s: Intrinsics, shape: tuple[int, ...], sc: ScreenConfig
 ) -> np.ndarray:
-    """HxW bool at the reference's input ``shape``: the grid's ``obj`` pixels at ``ratio``
-    projected into it, closed, each part's convex hull, grown by ``screen.object_margin_px``."""
-    u, v = sweep.project(ratio)
-    K_s = sweep.K_source
+    """HxW bool at the reference's input ``shape``: the sweep grid's ``obj`` pixels, which land at
+    ``(u, v)`` in the reference at the sweep's scale (intrinsics ``K_s``), closed, each part's
+    convex hull, grown by ``screen.object_margin_px``."""
     K_full = K_s.resized(shape[1], shape[0])
     sx, sy = K_full.fx / K_s.fx, K_full.fy / K_s.fy
     uf = (u[obj] + 0.5) * sx - 0.5

@@ -1,0 +1,173 @@
+"""Objects that lie on the surface: the hole's own content found in the reference where the surface
+behind it says it is.
+
+Depth cannot tell a manhole cover from the cobbles around it, nor the foot of a bush from the
+ground it stands on: both are at the surface's depth. What tells them apart is that the ring around
+the hole does not explain them. Each hole patch is compared with the ring's patches; the ones no
+ring patch resembles are the object's *core* (the brushed margin shows the background, which the
+ring does explain, so it is no part of it). The reference, warped onto the hole by the ring
+surface's own homography (the sweep's plane at ratio 1), then shows the core at its place, or a few
+pixels off where the surface's fit is a little wrong (the pose and the ring's depth are estimates):
+a masked NCC of the core, with its outline, searched over small shifts, says whether it does. Where
+it does, the core, shifted by the best match, is projected into the reference through the surface:
+that is the object as the reference shows it, and render pixels sampling it are refused however the
+render's own depth placed them. A look-alike elsewhere in the reference, or at another scale, is
+not where the surface puts the object and is not taken.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+from scipy.spatial import cKDTree
+
+from ..config import ScreenConfig
+from ..utils.resolution import config_px, odd_px
+from .depth import DepthLocation, ObjectSweep, region_in_reference
+
+#: Side (px, at the sweep's resolution) of the patches compared with the ring's, and the number of
+#: principal components they are reduced to (the nearest-neighbour search is fast in few dimensions).
+_PATCH_PX = 5
+_COMPONENTS = 12
+#: A hole patch is unexplained by the ring when its nearest ring patch is farther than this
+#: percentile of the ring patches' distances to their own nearest (spatially apart) ring patch.
+_RING_PERCENTILE = 90
+#: Ring patches sampled (the ring's self-distances are measured among them).
+_MAX_RING_PATCHES = 4000
+#: Gaussian blur (px, sweep resolution) of the target's grey before its core is matched.
+_BLUR_PX = 1.5
+#: Spatial neighbours within this many patch sides share pixels: they are not what explains a patch.
+_NEIGHBOURS = 24
+
+
+def unexplained(shown: np.ndarray, hole: np.ndarray, ring: np.ndarray) -> np.ndarray:
+    """HxW bool: the ``hole`` pixels of ``shown`` (HxWx3 uint8) whose CIELAB patch no ``ring`` patch
+    resembles as closely as the ring's patches resemble each other (at the
+    :data:`_RING_PERCENTILE`-th percentile). Nearest neighbours by SciPy's k-d tree over the patches'
+    principal components: no library ranks a region's patches against another region's.
+
+    >>> rng = np.random.default_rng(0)
+    >>> img = (rng.random((40, 40, 3)) * 60 + 100).astype(np.uint8); img[15:25, 15:25] = (200, 20, 20)
+    >>> hole = np.zeros((40, 40), bool); hole[10:30, 10:30] = True
+    >>> core = unexplained(img, hole, ~hole)
+    >>> bool(core[17:23, 17:23].all()), float(core[hole].mean()) < 0.5
+    (True, True)
+    """
+    lab = cv2.cvtColor(np.ascontiguousarray(shown), cv2.COLOR_RGB2LAB).astype(np.float32)
+    r = _PATCH_PX // 2
+    padded = cv2.copyMakeBorder(lab, r, r, r, r, cv2.BORDER_REFLECT)
+    patches = np.lib.stride_tricks.sliding_window_view(padded, (_PATCH_PX, _PATCH_PX, 3))
+    patches = patches.reshape(*lab.shape[:2], -1)
+    ry, rx = np.nonzero(ring)
+    step = max(1, len(ry) // _MAX_RING_PATCHES)
+    ry, rx = ry[::step], rx[::step]
+    hy, hx = np.nonzero(hole)
+    out = np.zeros(hole.shape, bool)
+    if len(ry) < 2 * _NEIGHBOURS or len(hy) == 0:
+        return out
+    ring_p, hole_p = patches[ry, rx], patches[hy, hx]
+    mean = ring_p.mean(axis=0)
+    centred = ring_p - mean
+    basis = np.linalg.eigh(centred.T @ centred)[1][:, ::-1][:, :_COMPONENTS]  # principal axes
+    tree = cKDTree((ring_p - mean) @ basis)
+    dist, idx = tree.query((ring_p - mean) @ basis, k=_NEIGHBOURS)
+    apart = np.hypot(ry[idx] - ry[:, None], rx[idx] - rx[:, None]) > _PATCH_PX
+    own = np.where(apart, dist, np.inf).min(axis=1)
+    own = own[np.isfinite(own)]
+    if own.size == 0:
+        return out
+    scale = float(np.percentile(own, _RING_PERCENTILE))
+    out[hy, hx] = tree.query((hole_p - mean) @ basis)[0] > scale
+    return out
+
+
+def locate_on_surface(
+    location: DepthLocation, source: np.ndarray, hole: np.ndarray, sc: ScreenConfig
+) -> np.ndarray | None:
+    """HxW bool at the reference's input size: the hole's unexplained core, where the reference
+    ``source`` shows it on the ring's surface (see the module docstring); None where there is no
+    such core or the reference does not show it there. ``location``:
+    :func:`~geofill.screen.depth.locate_by_depth`'s (its sweep)."""
+    sweep = location.sweep
+    if sweep is None:
+        return None
+    f = sweep.hole.shape[1] / (sweep.cols.stop - sweep.cols.start)  # sweep px per input px
+    px = config_px(1.0, hole.shape) * f
+    core = unexplained(sweep.shown, sweep.hole, ~sweep.hole)
+    # Specks are texture the ring happens not to hold, not an object: thin parts are opened away
+    # and parts smaller than a square of 1.5 ``screen.stranger_min_px`` dropped.
+    m = max(3, odd_px(sc.stranger_min_px / 2 * px))
+    core = cv2.morphologyEx(core.astype(np.uint8), cv2.MORPH_OPEN, np.ones((m, m), np.uint8))
+    _, labels, stats, _ = cv2.connectedComponentsWithStats(core, connectivity=8)
+    big = np.flatnonzero(stats[:, cv2.CC_STAT_AREA] >= (1.5 * sc.stranger_min_px * px) ** 2)
+    core = np.isin(labels, big[big > 0])
+    if not core.any():
+        return None
+    where = _shown_at(core, sweep, source, sc.surface_search_px * px, sc.surface_min_ncc)
+    if where is None:
+        return None
+    found = region_in_reference(*where, core, sweep.K_source, source.shape, sc)
+    return found if found.any() else None
+
+
+def _shown_at(
+    core: np.ndarray, sweep: ObjectSweep, source: np.ndarray, reach_px: float, min_ncc: float
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """Where (u, v maps: reference px at the sweep's scale, per grid pixel) the reference shows
+    ``core`` on the ring's surface, or None. The reference is warped onto the grid by the sweep's
+    surface (ratio 1), then aligned to the target on the ring by OpenCV's ECC (an affine motion:
+    the plane fitted to the rendered depth can be tilted or a little off, as on the Lund cobbles,
+    where it turned the manhole by 15 degrees and moved it by 10 px); ``core`` with its outline
+    must then match it (masked NCC of grey, at least ``min_ncc``) at some shift within
+    ``reach_px``."""
+    ss = sweep.source_size
+    grey_s = cv2.cvtColor(cv2.resize(source, ss, interpolation=cv2.INTER_AREA), cv2.COLOR_RGB2GRAY)
+    u, v = sweep.project(1.0)
+    warped = cv2.remap(
+        grey_s.astype(np.float32), u, v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=-1.0
+    )
+    grey_t = cv2.cvtColor(sweep.shown, cv2.COLOR_RGB2GRAY).astype(np.float32)
+    h, w = grey_t.shape
+    ring = ~sweep.hole & (warped >= 0)
+    affine = np.eye(2, 3, dtype=np.float32)
+    try:
+        _, affine = cv2.findTransformECC(
+            grey_t, np.maximum(warped, 0), affine, cv2.MOTION_AFFINE,
+            (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 100, 1e-5), ring.astype(np.uint8), 5,
+        )  # fmt: skip
+    except cv2.error:
+        return None  # the ring does not register: nothing says where on the surface the object is
+    aligned = cv2.warpAffine(
+        warped, affine, (w, h), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+        borderMode=cv2.BORDER_CONSTANT, borderValue=-1.0,
+    )  # fmt: skip
+    # The outline: what sets the object apart from the surface around it (a flat dark disc has no
+    # texture of its own to match).
+    mask = cv2.dilate(core.astype(np.uint8), np.ones((5, 5), np.uint8))
+    r = max(1, int(np.ceil(reach_px)))
+    # The search may leave the grid: padded with "outside" (negative) and blank.
+    aligned = cv2.copyMakeBorder(aligned, r, r, r, r, cv2.BORDER_CONSTANT, value=-1.0)
+    ys, xs = np.nonzero(mask)
+    y0, y1, x0, x1 = int(ys.min()), int(ys.max()) + 1, int(xs.min()), int(xs.max()) + 1
+    # Both at the reference's sharpness (resampled, often softer): the target's fine texture would
+    # not correlate with a blurred copy of itself.
+    template = cv2.GaussianBlur(grey_t, (0, 0), _BLUR_PX)[y0:y1, x0:x1]
+    weight = mask[y0:y1, x0:x1].astype(np.float32)
+    area = aligned[y0 : y1 + 2 * r, x0 : x1 + 2 * r]
+    if (area[r : r + y1 - y0, r : r + x1 - x0][weight > 0] < 0).mean() > 0.5:
+        return None  # the reference does not see where the surface puts the object
+    scores = cv2.matchTemplate(np.maximum(area, 0), template, cv2.TM_CCOEFF_NORMED, mask=weight)
+    scores = np.nan_to_num(scores, nan=-1.0, posinf=-1.0, neginf=-1.0)
+    dy, dx = np.mgrid[-r : r + 1, -r : r + 1]
+    scores[np.hypot(dx, dy) > reach_px] = -1.0
+    iy, ix = np.unravel_index(int(scores.argmax()), scores.shape)
+    if scores[iy, ix] < min_ncc:
+        return None
+    # Grid pixel p shows what the aligned reference shows at p + shift, the warped one at
+    # affine(p + shift), the reference at (u, v) there.
+    gy, gx = np.mgrid[0:h, 0:w].astype(np.float32)
+    gx, gy = gx + float(ix - r), gy + float(iy - r)
+    wx = affine[0, 0] * gx + affine[0, 1] * gy + affine[0, 2]
+    wy = affine[1, 0] * gx + affine[1, 1] * gy + affine[1, 2]
+    at = (cv2.remap(m, wx, wy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE) for m in (u, v))
+    return tuple(at)  # type: ignore[return-value]
