@@ -56,8 +56,11 @@ def unexplained(shown: np.ndarray, hole: np.ndarray, ring: np.ndarray) -> np.nda
     lab = cv2.cvtColor(np.ascontiguousarray(shown), cv2.COLOR_RGB2LAB).astype(np.float32)
     r = _PATCH_PX // 2
     padded = cv2.copyMakeBorder(lab, r, r, r, r, cv2.BORDER_REFLECT)
-    patches = np.lib.stride_tricks.sliding_window_view(padded, (_PATCH_PX, _PATCH_PX, 3))
-    patches = patches.reshape(*lab.shape[:2], -1)
+    oy, ox = (o.ravel() for o in np.mgrid[0:_PATCH_PX, 0:_PATCH_PX])
+
+    def patches(ys: np.ndarray, xs: np.ndarray) -> np.ndarray:
+        return padded[ys[:, None] + oy, xs[:, None] + ox].reshape(len(ys), -1)
+
     ry, rx = np.nonzero(ring)
     step = max(1, len(ry) // _MAX_RING_PATCHES)
     ry, rx = ry[::step], rx[::step]
@@ -65,7 +68,7 @@ def unexplained(shown: np.ndarray, hole: np.ndarray, ring: np.ndarray) -> np.nda
     out = np.zeros(hole.shape, bool)
     if len(ry) < 2 * _NEIGHBOURS or len(hy) == 0:
         return out
-    ring_p, hole_p = patches[ry, rx], patches[hy, hx]
+    ring_p, hole_p = patches(ry, rx), patches(hy, hx)
     mean = ring_p.mean(axis=0)
     centred = ring_p - mean
     basis = np.linalg.eigh(centred.T @ centred)[1][:, ::-1][:, :_COMPONENTS]  # principal axes
