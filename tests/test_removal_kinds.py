@@ -271,3 +271,19 @@ def test_cli_removal_mask_tight_and_its_errors(tmp_path):
     assert main_eval([*argv, "--protocol", "walker", "--removal-mask", "tight"]) == 0
     assert json.loads((tmp_path / "cases.json").read_text())["synthetic_000"]["hole_mask"] == "tight"
     assert main_eval([*argv, "--removal-mask", "tight"]) == 2  # restoration has no object
+
+
+def test_ghost_finds_a_copy_rotated_rescaled_and_resampled_as_a_warp_leaves_it():
+    truth, shown, mask, hole = _scene(2)
+    # The object turned by 12 degrees, shrunk to 0.8 and moved 25 px, bilinear as a warp samples:
+    # 7-px patches of it lie 10-20 levels from any patch of the object, so a patch library misses it.
+    A = cv2.getRotationMatrix2D((130.0, 120.0), 12.0, 0.8)
+    A[:, 2] += (25.0, 10.0)
+    warped = cv2.warpAffine(shown, A, (320, 240), flags=cv2.INTER_LINEAR)
+    moved = (cv2.warpAffine(mask.astype(np.uint8), A, (320, 240), flags=cv2.INTER_NEAREST) > 0) & hole
+    out = truth.copy()
+    out[moved] = warped[moved]
+    share = moved.sum() / hole.sum()
+    found = ghost(out, truth, hole, [(shown, mask)])
+    assert found.fraction >= 0.6 * share
+    assert (found.mask & moved).sum() >= 0.95 * found.mask.sum()

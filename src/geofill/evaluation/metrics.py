@@ -250,32 +250,25 @@ def leak(
     return Leak(float(leaked.sum()) / n if n else None, int(leaked.sum()), n)
 
 
-#: Ghost: the working scale's long side (px; larger images are shrunk with INTER_AREA), the patch
-#: side compared there, the scales at which the objects' patches are offered (a fragment pasted
-#: nearer or farther), and the most object patches kept (a regular subsample beyond).
-GHOST_WORK_SIDE = 480
-GHOST_PATCH = 7
-GHOST_SCALES = (0.7, 1.0, 1.4)
-GHOST_MAX_PATCHES = 60_000
-#: A hole pixel is *changed* where the output's patch is this far (RMS over the patch, 0-255) from
-#: the truth's, and a *ghost* where it is also nearer to some object patch than
-#: :data:`LEAK_RATIO` times its distance to the truth's.
+#: Ghost: the working scale's long side (px; larger images are shrunk with INTER_AREA).
+GHOST_WORK_SIDE = 640
+#: A copy of an object is a set of SIFT matches from the output around the hole to one view's object
+#: pixels (Lowe's ratio test against that object's features and the truth's own together, so that
+#: background a method copied rightly never counts) that one similarity transform (shift, rotation,
+#: scale: a fragment pasted elsewhere, nearer or farther) explains within GHOST_RANSAC_PX, with at
+#: least GHOST_MIN_MATCHES of them.
+GHOST_LOWE_RATIO = 0.8
+GHOST_RANSAC_PX = 3.0
+GHOST_MIN_MATCHES = 3
+#: Copies looked for per view (each found copy's matches are taken out before the next search).
+GHOST_MAX_COPIES = 3
+#: With the view mapped by that transform, a hole pixel is the copy's where the output (blurred by
+#: GHOST_BLUR_PX, as a resampled copy is) differs from the truth's by more than GHOST_MIN_CHANGE
+#: (RMS over RGB, 0-255) and is nearer the mapped object than :data:`LEAK_RATIO` times that. Three
+#: matches can agree by chance: a copy counts only where GHOST_MIN_AREA px (working scale) confirm it.
+GHOST_BLUR_PX = 1.0
 GHOST_MIN_CHANGE = 12.0
-#: Only output patches with structure count (RMS about the patch's mean per channel, 0-255): a
-#: smooth smear of the surroundings comes within a few levels of the smooth parts of many objects
-#: (a plain face, a photo's blurred background) and was flagged as often as real copies; a copied
-#: fragment keeps its edges and texture. A one-colour object's copy is thus counted along its
-#: outline and shading edges, not across its flat inside.
-GHOST_MIN_TEXTURE = 6.0
-#: ... and nearer to that object patch than this (RMS, 0-255): a copy keeps the object's colours
-#: (resampled, colour-corrected), a smear of the surroundings only comes near them.
-GHOST_MAX_DISTANCE = 8.0
-#: A copy's brightness may differ from the object's by this factor either way (a method's colour
-#: correction): an object patch is compared with the output's at its best gain within it.
-GHOST_GAIN = 1.3
-#: Object patches are compared in this many principal components (then exactly, on the nearest few).
-_GHOST_COMPONENTS = 16
-_GHOST_CANDIDATES = 8
+GHOST_MIN_AREA = 30
 
 
 @dataclass(frozen=True)
@@ -290,14 +283,6 @@ class Ghost:
     mask: np.ndarray
 
 
-def _patches(image: np.ndarray, centres: np.ndarray) -> np.ndarray:
-    """(N, P*P*3) float32 patches of ``image`` (HxWx3, edge-replicated) around (N, 2) (y, x)."""
-    r = GHOST_PATCH // 2
-    padded = np.pad(image.astype(np.float32), ((r, r), (r, r), (0, 0)), mode="edge")
-    windows = np.lib.stride_tricks.sliding_window_view(padded, (GHOST_PATCH, GHOST_PATCH), axis=(0, 1))
-    return windows[centres[:, 0], centres[:, 1]].reshape(len(centres), -1)
-
-
 def _shrunk(image: np.ndarray, factor: float) -> np.ndarray:
     if factor == 1.0:
         return image
@@ -307,88 +292,89 @@ def _shrunk(image: np.ndarray, factor: float) -> np.ndarray:
     return cv2.resize(image, size, interpolation=interp)
 
 
+def _sift(image: np.ndarray, where: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """SIFT keypoints ((N, 2) x, y) and descriptors ((N, 128) float32) of ``image`` (HxWx3 uint8
+    RGB) inside ``where`` (HxW bool)."""
+    grey = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)
+    keypoints, desc = cv2.SIFT_create().detectAndCompute(grey, where.astype(np.uint8) * 255)
+    pts = np.float32([k.pt for k in keypoints]).reshape(-1, 2)
+    return pts, desc if desc is not None else np.zeros((0, 128), np.float32)
+
+
+def _blurred(image: np.ndarray) -> np.ndarray:
+    return cv2.GaussianBlur(image.astype(np.float32), (0, 0), GHOST_BLUR_PX)
+
+
 def ghost(
     output: np.ndarray,
     truth: np.ndarray,
     hole: np.ndarray,
     appearances: Sequence[tuple[np.ndarray, np.ndarray]],
 ) -> Ghost:
-    """The share of the hole where ``output`` shows an object (or a passer-by) *anywhere*, shifted
-    or rescaled, rather than the true background.
+    """The share of the hole where ``output`` shows an object (or a passer-by) *anywhere*, shifted,
+    rotated or rescaled, rather than the true background.
 
     ``appearances``: (HxWx3 uint8 view, HxW bool object pixels in it) for every view that shows an
-    object (the target as the methods get it, each reference). Everything is shrunk to a long
-    side of :data:`GHOST_WORK_SIDE`; the object library holds the :data:`GHOST_PATCH`-px patches
-    centred on the object pixels of every view, each view also rescaled by :data:`GHOST_SCALES`.
-    For each hole pixel p: ``d_true`` = RMS distance between the output's and the truth's patches
-    at p, ``d_obj`` = RMS distance of the output's patch to its nearest library patch (searched
-    by direction in the library's first principal components, the best few candidates compared
-    exactly, each at its best brightness gain within :data:`GHOST_GAIN`).
-    p is a *ghost* when ``d_true > GHOST_MIN_CHANGE``, the output's patch has structure (RMS about
-    its mean >= :data:`GHOST_MIN_TEXTURE`), ``d_obj < GHOST_MAX_DISTANCE`` and ``d_obj <
-    LEAK_RATIO * d_true``: the output differs from the truth there and looks at least twice as
-    much like some piece of an object as like the background. The truth scores 0; a textured copy
-    of the object anywhere in the hole scores its share of the hole.
+    object (the target as the methods get it, each reference). At a long side of
+    :data:`GHOST_WORK_SIDE`, the output's SIFT features around the hole are matched to each view's
+    object features; matches one similarity transform explains locate a copy (see the module's
+    ``GHOST_*`` constants); the copy's pixels are the hole pixels, inside the mapped object, where
+    the output is at least twice as near the mapped object as the truth. A copy keeps the
+    object's texture, so SIFT finds it however a method warped, resampled or recoloured it; a
+    smear of the surroundings has no features that match. Flat parts of a one-colour object are
+    found only where they lie between matched edges and corners, and a fragment too small to hold
+    three features is not found: the leak (:func:`leak`) counts an object put back in place.
+    The truth scores 0.
+
+    >>> rng = np.random.default_rng(0)
+    >>> truth = rng.integers(0, 256, (64, 64, 3), dtype=np.uint8)
+    >>> hole = np.zeros((64, 64), bool); hole[16:48, 16:48] = True
+    >>> ghost(truth, truth, hole, []).fraction
+    0.0
     """
     _check(output, truth, hole)
     h, w = hole.shape
-    centres, small_shape, d_true, d_obj = ghost_distances(output, truth, hole, appearances)
-    is_ghost = (d_obj < LEAK_RATIO * d_true) & (d_obj < GHOST_MAX_DISTANCE)
-    small = np.zeros(small_shape, np.uint8)
-    small[centres[is_ghost, 0], centres[is_ghost, 1]] = 1
-    full = cv2.resize(small, (w, h), interpolation=cv2.INTER_NEAREST).astype(bool) & hole
-    n = len(centres)
-    return Ghost(float(is_ghost.mean()) if n else 0.0, int(is_ghost.sum()), n, full)
-
-
-def ghost_distances(
-    output: np.ndarray,
-    truth: np.ndarray,
-    hole: np.ndarray,
-    appearances: Sequence[tuple[np.ndarray, np.ndarray]],
-) -> tuple[np.ndarray, tuple[int, int], np.ndarray, np.ndarray]:
-    """:func:`ghost`'s measurements: the hole pixels at the working scale ((N, 2) (y, x)), that
-    scale's (h, w), and per pixel ``d_true`` and ``d_obj`` (inf where the output is within
-    :data:`GHOST_MIN_CHANGE` of the truth, flat, or no object shows anywhere)."""
-    from scipy.spatial import cKDTree
-
-    h, w = hole.shape
     factor = min(1.0, GHOST_WORK_SIDE / max(h, w))
-    out, tru = _shrunk(output, factor), _shrunk(truth, factor)
-    small_hole = _shrunk(hole.astype(np.float32), factor) >= 0.5
-    centres = np.argwhere(small_hole)
-    d_obj = np.full(len(centres), np.inf)
-    library = []
-    for view, mask in appearances:
-        for scale in GHOST_SCALES:
-            f = factor * scale
-            on = _shrunk(mask.astype(np.float32), f) >= 0.5
-            if on.any():
-                library.append(_patches(_shrunk(view, f), np.argwhere(on)))
-    queries = _patches(out, centres)
-    d_true = np.sqrt(np.mean((queries - _patches(tru, centres)) ** 2, axis=1))
-    per_channel = queries.reshape(len(queries), 3, -1)
-    texture = np.sqrt(np.mean((per_channel - per_channel.mean(axis=2, keepdims=True)) ** 2, axis=(1, 2)))
-    changed = (d_true > GHOST_MIN_CHANGE) & (texture >= GHOST_MIN_TEXTURE)
-    if not library or not changed.any():
-        return centres, small_hole.shape, d_true, d_obj
-    lib = np.concatenate(library)
-    if len(lib) > GHOST_MAX_PATCHES:
-        lib = lib[np.linspace(0, len(lib) - 1, GHOST_MAX_PATCHES).astype(int)]
-    # Searched by direction (patches scaled to unit length), so that a copy whose brightness a
-    # method corrected is still found; compared with the best gain within GHOST_GAIN.
-    unit_lib = lib / (np.linalg.norm(lib, axis=1, keepdims=True) + 1e-6)
-    mean = unit_lib.mean(axis=0)
-    n_comp = min(_GHOST_COMPONENTS, lib.shape[1], len(lib))
-    _, _, vt = np.linalg.svd(unit_lib[:: max(1, len(lib) // 5000)] - mean, full_matrices=False)
-    basis = vt[:n_comp].T
-    tree = cKDTree((unit_lib - mean) @ basis)
-    q = queries[changed]
-    k = min(_GHOST_CANDIDATES, len(lib))
-    unit_q = q / (np.linalg.norm(q, axis=1, keepdims=True) + 1e-6)
-    _, idx = tree.query((unit_q - mean) @ basis, k=k)
-    cand = lib[idx.reshape(len(q), k)]
-    gain = np.einsum("nkd,nd->nk", cand, q) / (np.einsum("nkd,nkd->nk", cand, cand) + 1e-6)
-    gain = np.clip(gain, 1.0 / GHOST_GAIN, GHOST_GAIN)
-    d_obj[changed] = np.sqrt(np.mean((gain[..., None] * cand - q[:, None, :]) ** 2, axis=2)).min(axis=1)
-    return centres, small_hole.shape, d_true, d_obj
+    out, small_hole = _shrunk(output, factor), _shrunk(hole.astype(np.float32), factor) >= 0.5
+    size = small_hole.shape[::-1]
+    around = cv2.dilate(small_hole.astype(np.uint8), np.ones((7, 7), np.uint8)).astype(bool)
+    out_pts, out_desc = _sift(out, around)
+    found = np.zeros(small_hole.shape, bool)
+    if len(out_pts) >= GHOST_MIN_MATCHES and appearances:
+        tru = _shrunk(truth, factor)
+        _, truth_desc = _sift(tru, around)
+        blurred_out = _blurred(out)
+        d_true = np.sqrt(np.mean((blurred_out - _blurred(tru)) ** 2, axis=2))
+        changed = small_hole & (d_true > GHOST_MIN_CHANGE)
+        for view, mask in appearances:
+            small_view = _shrunk(view, factor)
+            on = _shrunk(mask.astype(np.float32), factor) >= 0.5
+            grown = cv2.dilate(on.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
+            obj_pts, obj_desc = _sift(small_view, grown)
+            if len(obj_pts) < GHOST_MIN_MATCHES or not changed.any():
+                continue
+            library = np.concatenate([obj_desc, truth_desc])
+            src, dst = [], []
+            for pair in cv2.BFMatcher(cv2.NORM_L2).knnMatch(out_desc, library, k=2):
+                if len(pair) == 2 and pair[0].distance < GHOST_LOWE_RATIO * pair[1].distance:
+                    if pair[0].trainIdx < len(obj_desc):  # nearest to the object, not the truth
+                        src.append(obj_pts[pair[0].trainIdx])
+                        dst.append(out_pts[pair[0].queryIdx])
+            src, dst = np.float32(src).reshape(-1, 2), np.float32(dst).reshape(-1, 2)
+            for _ in range(GHOST_MAX_COPIES):
+                if len(src) < GHOST_MIN_MATCHES:
+                    break
+                A, inliers = cv2.estimateAffinePartial2D(src, dst, ransacReprojThreshold=GHOST_RANSAC_PX)
+                if A is None or inliers.sum() < GHOST_MIN_MATCHES:
+                    break
+                mapped = cv2.warpAffine(small_view, A, size)
+                inside = cv2.warpAffine(on.astype(np.uint8), A, size, flags=cv2.INTER_NEAREST) > 0
+                d_obj = np.sqrt(np.mean((blurred_out - _blurred(mapped)) ** 2, axis=2))
+                copy = changed & inside & (d_obj < LEAK_RATIO * d_true)
+                if copy.sum() >= GHOST_MIN_AREA:
+                    found |= copy
+                keep = ~inliers.ravel().astype(bool)
+                src, dst = src[keep], dst[keep]
+    full = cv2.resize(found.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST).astype(bool) & hole
+    n = int(small_hole.sum())
+    return Ghost(float(found.sum() / n) if n else 0.0, int(found.sum()), n, full)

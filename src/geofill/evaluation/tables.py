@@ -254,10 +254,11 @@ LEAK_TEXT = (
 
 #: What the summary says the ghost is (metrics.ghost).
 GHOST_TEXT = (
-    "fraction of the hole pixels where the output's 7-px patch (at a 480-px long side) differs from "
-    "the truth's by more than 12 RMS and is nearer to some patch of an object or passer-by, as any "
-    "view shows it, at any place and at scales 0.7-1.4, than half its distance to the truth's: the "
-    "object reproduced anywhere in the hole, shifted or rescaled"
+    "fraction of the hole pixels (at a 640-px long side) where the output shows a copy of an object "
+    "or passer-by as some view shows it, placed anywhere, rotated or rescaled: SIFT matches to the "
+    "object that one similarity transform explains, confirmed pixel by pixel where the output is "
+    "at least twice as near the mapped object as the truth (a copy too small for 3 features, and "
+    "the flat inside of a one-colour object, are not counted)"
 )
 
 
