@@ -98,11 +98,13 @@ def _solve(field: np.ndarray, known: np.ndarray, unknown: np.ndarray, fallback: 
     reached_label = np.zeros(n_labels, bool)
     reached_label[labels[touching]] = True
     reached_label[0] = False  # the known pixels' label
-    out[unknown & ~reached_label[labels]] = fallback
+    reached = reached_label[labels]
+    out[unknown & ~reached] = fallback
     for group in _groups(stats, reached_label):
         y0, y1, x0, x1 = _box(stats[group])
         box = (slice(max(y0 - 1, 0), y1 + 1), slice(max(x0 - 1, 0), x1 + 1))
-        inside = np.isin(labels[box], group)
+        # A group is one region, or all of them together.
+        inside = labels[box] == group[0] if group.size == 1 else reached[box]
         out[box][inside] = _pcg(field[box], known[box], inside, fallback)[inside]
     return out
 
@@ -125,11 +127,12 @@ def _box(stats: np.ndarray) -> tuple[int, int, int, int]:
 
 
 def _groups(stats: np.ndarray, solved: np.ndarray) -> list[np.ndarray]:
-    """The labels to solve together. Regions of unknowns are independent systems (4-neighbour
-    Laplacian, not 4-connected: no equation links them), but one solve costs its bounding box's
-    area per iteration: scattered regions (what a render leaves uncovered across a hole) were
-    solved on a box of the whole image. Each region is solved on its own box when those boxes
-    cover at most :data:`_SEPARATE_SHARE` of the shared one; the rest stay together."""
+    """The labels to solve together: all in one system, or each alone. Regions of unknowns are
+    independent systems (4-neighbour Laplacian, not 4-connected: no equation links them), but one
+    solve costs its bounding box's area per iteration: scattered regions (what a render leaves
+    uncovered across a hole) were solved on a box of the whole image. Each region is solved on its
+    own box when those boxes cover at most :data:`_SEPARATE_SHARE` of the shared one, else all
+    together on it."""
     labels = np.flatnonzero(solved)
     if labels.size <= 1:
         return [labels] if labels.size else []
