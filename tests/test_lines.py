@@ -5,6 +5,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from geofill.composite import lines
 from geofill.composite.lines import continue_lines
 from geofill.composite.rectify import paint
 
@@ -55,3 +56,30 @@ def test_edges_that_do_not_cross_the_hole_are_left_alone():
     blank = image.copy()
     blank[hole] = 0
     assert not continue_lines(blank.copy(), hole, 7).any()
+
+
+def test_pairs_tested_at_once_keep_every_collinear_pair():
+    # Many segments, some in nearly collinear pairs across a gap: the quick all-pairs test must keep
+    # every pair the exact test accepts (the painter would otherwise lose an edge).
+    rng = np.random.default_rng(3)
+    ends = []
+    for _ in range(60):
+        near = rng.uniform(0, 300, 2)
+        angle = rng.uniform(0, 2 * np.pi)
+        d = np.array([np.cos(angle), np.sin(angle)])
+        ends.append((near, near - rng.uniform(15, 60) * d))
+        # Its partner across a gap along the same line, turned by up to 3 degrees.
+        turn = np.radians(rng.uniform(-3, 3))
+        rot = np.array([[np.cos(turn), -np.sin(turn)], [np.sin(turn), np.cos(turn)]])
+        start = near + rng.uniform(10, 40) * d + rng.normal(0, 0.5, 2)
+        ends.append((start, start + rng.uniform(15, 60) * (rot @ d)))
+    exact = {
+        (i, j)
+        for i in range(len(ends))
+        for j in range(i + 1, len(ends))
+        if lines._collinear(ends[i], ends[j]) is not None
+    }
+    quick = lines._facing_pairs(ends)
+    assert len(exact) >= 20
+    assert exact <= set(quick)
+    assert len(quick) < 0.05 * len(ends) * (len(ends) - 1) / 2

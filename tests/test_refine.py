@@ -135,6 +135,25 @@ def test_membrane_solve_matches_a_sparse_direct_solve():
     assert np.abs(ours - ref)[small].max() < 1e-5
 
 
+def test_scattered_regions_solved_apart_match_a_sparse_direct_solve():
+    # Small regions of unknowns scattered over a large field (what a render leaves uncovered across
+    # a hole) are solved each on its own box: the answer is still the whole system's.
+    rng = np.random.default_rng(1)
+    h, w = 240, 320
+    yy, xx = np.mgrid[0:h, 0:w]
+    field = cv2.GaussianBlur(rng.normal(0.0, 1.0, (h, w, 3)).astype(np.float32), (0, 0), 5) * 20
+    unknown = np.zeros((h, w), bool)
+    for cy, cx, r in ((12, 15, 9), (200, 300, 14), (120, 160, 6), (230, 20, 8), (40, 290, 3)):
+        unknown |= (yy - cy) ** 2 + (xx - cx) ** 2 < r**2
+    unknown |= (np.abs(yy - 80) <= 1) & (xx > 60) & (xx < 70)  # a crack
+    known = ~unknown
+    fallback = np.zeros(3, np.float32)
+    ours = _solve(field, known, unknown, fallback)
+    ref = _sparse_lu_solve(field, known, unknown, fallback)
+    assert np.abs(ours - ref)[unknown].max() < 1e-4 * np.ptp(ref[unknown])
+    assert np.array_equal(ours[known], np.zeros_like(ours[known]))
+
+
 # --- colour models --------------------------------------------------------------------------------
 
 

@@ -67,34 +67,52 @@ def continue_lines(image: np.ndarray, hole: np.ndarray, patch_px: int) -> np.nda
         near, far = (a[k], b[k]) if da[k] <= db[k] else (b[k], a[k])
         if not _crosses(hole, near, far):
             ends.append((near, far))
-    for i in range(len(ends)):
-        for j in range(i + 1, len(ends)):
-            line = _collinear(ends[i], ends[j])
-            if line is None or not _crosses(hole, ends[i][0], ends[j][0]):
-                continue
-            # Everything below lies within the box round both segments.
-            corners = np.array([*ends[i], *ends[j]])
-            lo = np.maximum(np.floor(corners.min(0)).astype(int) - _HALF_WIDTH - 1, 0)
-            hi = np.minimum(np.ceil(corners.max(0)).astype(int) + _HALF_WIDTH + 2, hole.shape[::-1])
-            box = (slice(lo[1], hi[1]), slice(lo[0], hi[0]))
-            ys, xs = np.mgrid[box].astype(np.float64)
-            point, direction = line
-            normal = np.array([-direction[1], direction[0]])
-            offset = (xs - point[0]) * normal[0] + (ys - point[1]) * normal[1]
-            along = (xs - point[0]) * direction[0] + (ys - point[1]) * direction[1]
-            ti = [float((p - point) @ direction) for p in ends[i]]
-            tj = [float((p - point) @ direction) for p in ends[j]]
-            on = (np.abs(offset) <= _HALF_WIDTH + 0.5) & known[box]
-            on &= _between(along, ti) | _between(along, tj)
-            band = hole[box] & (np.abs(offset) <= _HALF_WIDTH + 0.5)
-            band &= _between(along, [ti[0], tj[0]])
-            profile = _profile(image[box], offset, on)
-            if profile is None or not band.any():
-                continue
-            k = np.clip(np.rint(offset[band]).astype(int) + _HALF_WIDTH, 0, 2 * _HALF_WIDTH)
-            image[box][band] = profile[k]
-            drawn[box] |= band
+    for i, j in _facing_pairs(ends):
+        line = _collinear(ends[i], ends[j])
+        if line is None or not _crosses(hole, ends[i][0], ends[j][0]):
+            continue
+        # Everything below lies within the box round both segments.
+        corners = np.array([*ends[i], *ends[j]])
+        lo = np.maximum(np.floor(corners.min(0)).astype(int) - _HALF_WIDTH - 1, 0)
+        hi = np.minimum(np.ceil(corners.max(0)).astype(int) + _HALF_WIDTH + 2, hole.shape[::-1])
+        box = (slice(lo[1], hi[1]), slice(lo[0], hi[0]))
+        ys, xs = np.mgrid[box].astype(np.float64)
+        point, direction = line
+        normal = np.array([-direction[1], direction[0]])
+        offset = (xs - point[0]) * normal[0] + (ys - point[1]) * normal[1]
+        along = (xs - point[0]) * direction[0] + (ys - point[1]) * direction[1]
+        ti = [float((p - point) @ direction) for p in ends[i]]
+        tj = [float((p - point) @ direction) for p in ends[j]]
+        on = (np.abs(offset) <= _HALF_WIDTH + 0.5) & known[box]
+        on &= _between(along, ti) | _between(along, tj)
+        band = hole[box] & (np.abs(offset) <= _HALF_WIDTH + 0.5)
+        band &= _between(along, [ti[0], tj[0]])
+        profile = _profile(image[box], offset, on)
+        if profile is None or not band.any():
+            continue
+        k = np.clip(np.rint(offset[band]).astype(int) + _HALF_WIDTH, 0, 2 * _HALF_WIDTH)
+        image[box][band] = profile[k]
+        drawn[box] |= band
     return drawn
+
+
+#: Angle (degrees) of the quick test of all pairs of segments at once, a little wider than
+#: _ANGLE_DEG so that every pair :func:`_collinear` accepts passes it (rounding aside).
+_PREFILTER_DEG = _ANGLE_DEG + 0.5
+
+
+def _facing_pairs(ends: list[tuple[np.ndarray, np.ndarray]]) -> list[tuple[int, int]]:
+    """The pairs (i < j) of segments (near end, far end) whose directions, each pointing towards
+    the other's far end, are within _PREFILTER_DEG: :func:`_collinear` tested every pair one at
+    a time, 0.15 s of a Berlin fill for thousands of pairs of which a few are close to parallel."""
+    if len(ends) < 2:
+        return []
+    near = np.array([e[0] for e in ends])
+    d = near - np.array([e[1] for e in ends])  # far end -> near end
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    # Segment i points far -> near (d_i), segment j near -> far (-d_j): facing when d_i . -d_j ~ 1.
+    i, j = np.nonzero(np.triu(-(d @ d.T) >= np.cos(np.radians(_PREFILTER_DEG)), k=1))
+    return list(zip(i.tolist(), j.tolist(), strict=True))
 
 
 def _at(a: np.ndarray, p: np.ndarray) -> np.ndarray:

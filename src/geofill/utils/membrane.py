@@ -91,20 +91,56 @@ def _stacked_neighbour_sum(x: np.ndarray) -> np.ndarray:
 def _solve(field: np.ndarray, known: np.ndarray, unknown: np.ndarray, fallback: np.ndarray) -> np.ndarray:
     """4-neighbour Laplace solve on the grid of ``field`` (the system ``(L + t I) u = b + t
     fallback``, t = :data:`_TIKHONOV`). Its regions of unknowns that touch no known pixel are
-    exactly ``fallback``; the others are solved together on their bounding box."""
+    exactly ``fallback``; the others are solved on their bounding boxes (see :func:`_groups`)."""
     out = np.zeros_like(field)
-    n_labels, labels = cv2.connectedComponents(unknown.astype(np.uint8), connectivity=4)
+    n_labels, labels, stats, _ = cv2.connectedComponentsWithStats(unknown.astype(np.uint8), connectivity=4)
     touching = (cv2.dilate(known.astype(np.uint8), _CROSS.astype(np.uint8)) > 0) & unknown
     reached_label = np.zeros(n_labels, bool)
     reached_label[labels[touching]] = True
-    reached = reached_label[labels] & unknown
+    reached_label[0] = False  # the known pixels' label
+    reached = reached_label[labels]
     out[unknown & ~reached] = fallback
-    if reached.any():
-        ys, xs = np.nonzero(reached)
-        box = (slice(max(ys.min() - 1, 0), ys.max() + 2), slice(max(xs.min() - 1, 0), xs.max() + 2))
-        inside = reached[box]
+    for group in _groups(stats, reached_label):
+        y0, y1, x0, x1 = _box(stats[group])
+        box = (slice(max(y0 - 1, 0), y1 + 1), slice(max(x0 - 1, 0), x1 + 1))
+        # A group is one region, or all of them together.
+        inside = labels[box] == group[0] if group.size == 1 else reached[box]
         out[box][inside] = _pcg(field[box], known[box], inside, fallback)[inside]
     return out
+
+
+#: Regions of unknowns are solved on one shared box unless their own boxes together cover at most
+#: this share of it.
+_SEPARATE_SHARE = 0.5
+
+
+def _box(stats: np.ndarray) -> tuple[int, int, int, int]:
+    """Rows and columns (first, last + 1) of the bounding box of ``cv2.connectedComponentsWithStats``
+    rows."""
+    x, y = stats[:, cv2.CC_STAT_LEFT], stats[:, cv2.CC_STAT_TOP]
+    return (
+        int(y.min()),
+        int((y + stats[:, cv2.CC_STAT_HEIGHT]).max()),
+        int(x.min()),
+        int((x + stats[:, cv2.CC_STAT_WIDTH]).max()),
+    )
+
+
+def _groups(stats: np.ndarray, solved: np.ndarray) -> list[np.ndarray]:
+    """The labels to solve together: all in one system, or each alone. Regions of unknowns are
+    independent systems (4-neighbour Laplacian, not 4-connected: no equation links them), but one
+    solve costs its bounding box's area per iteration: scattered regions (what a render leaves
+    uncovered across a hole) were solved on a box of the whole image. Each region is solved on its
+    own box when those boxes cover at most :data:`_SEPARATE_SHARE` of the shared one, else all
+    together on it."""
+    labels = np.flatnonzero(solved)
+    if labels.size <= 1:
+        return [labels] if labels.size else []
+    y0, y1, x0, x1 = _box(stats[labels])
+    own = stats[labels, cv2.CC_STAT_WIDTH].astype(np.int64) * stats[labels, cv2.CC_STAT_HEIGHT]
+    if own.sum() > _SEPARATE_SHARE * (y1 - y0) * (x1 - x0):
+        return [labels]
+    return [labels[i : i + 1] for i in range(labels.size)]
 
 
 class _Level:
