@@ -106,6 +106,11 @@ def locate_on_surface(
     core = np.isin(labels, big[big > 0])
     if not core.any():
         return None
+    # Parts of the object can look like the ring (a car's dark windows like the trees' shade):
+    # the object is what the core's pieces enclose, their convex hull.
+    ys, xs = np.nonzero(core)
+    hull = cv2.convexHull(np.column_stack([xs, ys]).astype(np.int32))
+    core = cv2.fillConvexPoly(np.zeros(core.shape, np.uint8), hull, 1).astype(bool) & sweep.hole
     where = _shown_at(core, sweep, source, sc.surface_search_px * px, sc.surface_min_ncc)
     if where is None:
         return None
