@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import resource
 import subprocess
 import sys
 import tempfile
@@ -35,9 +36,9 @@ STATIC_PAIRS = [
 ]
 
 
-def timed_child(cmd: list[str], env: dict[str, str] | None = None) -> tuple[float, float]:
-    """(wall s, peak RSS MiB) of one child process; raises if it fails. The peak RSS is the
-    child's own (``os.wait4``), its stdout is discarded."""
+def child_usage(cmd: list[str], env: dict[str, str] | None = None) -> tuple[float, resource.struct_rusage]:
+    """(wall s, resource usage) of one child process; raises if it fails. Its stdout is
+    discarded."""
     with tempfile.TemporaryFile() as err:
         t0 = time.perf_counter()
         proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=err, env=env)
@@ -48,6 +49,13 @@ def timed_child(cmd: list[str], env: dict[str, str] | None = None) -> tuple[floa
             err.seek(0)
             text = err.read().decode(errors="replace").strip()[-500:]
             raise RuntimeError(f"{' '.join(cmd)} failed ({proc.returncode}): {text}")
+    return wall, usage
+
+
+def timed_child(cmd: list[str], env: dict[str, str] | None = None) -> tuple[float, float]:
+    """(wall s, peak RSS MiB) of one child process (its own peak, ``os.wait4``); raises if it
+    fails."""
+    wall, usage = child_usage(cmd, env)
     return wall, usage.ru_maxrss / 1024.0
 
 

@@ -13,20 +13,16 @@ from __future__ import annotations
 import argparse
 import os
 import statistics
-import subprocess
 import sys
 import tempfile
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root: benchmarks.common
-from benchmarks.common import earlier_cli, export_src
+from benchmarks.common import child_usage, earlier_cli, export_src
 
 
 def _cpu_s(cmd: list[str], env: dict[str, str] | None) -> float:
-    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, env=env)
-    _, status, usage = os.wait4(proc.pid, 0)
-    if os.waitstatus_to_exitcode(status):
-        raise RuntimeError(f"{' '.join(cmd)} failed")
+    usage = child_usage(cmd, env)[1]
     return usage.ru_utime + usage.ru_stime
 
 
