@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
-from scipy.spatial import cKDTree
 
 from ..config import ScreenConfig
 from ..utils.resolution import config_px, odd_px
@@ -69,6 +68,10 @@ def unexplained(shown: np.ndarray, hole: np.ndarray, ring: np.ndarray) -> np.nda
     if len(ry) < 2 * _NEIGHBOURS or len(hy) == 0:
         return out
     ring_p, hole_p = patches(ry, rx), patches(hy, hx)
+    # Imported here: scipy.spatial (with scipy.sparse) costs a process 0.2 s to import, and most
+    # fills never run this test.
+    from scipy.spatial import cKDTree
+
     mean = ring_p.mean(axis=0)
     centred = ring_p - mean
     basis = np.linalg.eigh(centred.T @ centred)[1][:, ::-1][:, :_COMPONENTS]  # principal axes
