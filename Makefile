@@ -34,9 +34,10 @@ test: lint
 results: $(STAMP)
 	$(PY) benchmarks/make_results.py
 
-# Which sections of docs/results.md predate the code they depend on (rerun them: make_results.py --only stale)
+# Which sections of docs/results.md predate the code they depend on, noted under their headings too
+# (rerun them: make_results.py --only stale)
 results-stale: $(STAMP)
-	$(PY) benchmarks/make_results.py --stale
+	$(PY) benchmarks/make_results.py --stale --mark-stale
 
 clean:
 	rm -rf $(VENV) demo_out .pytest_cache .ruff_cache

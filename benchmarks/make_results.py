@@ -641,6 +641,38 @@ def stale_report() -> list[str]:
     return lines
 
 
+#: The note under a stale section's heading (:func:`mark_stale`), so that a reader of
+#: docs/results.md sees it where the numbers are.
+STALE_NOTE = re.compile(r"^> \*\*Stale:\*\* .*\n\n", re.M)
+
+
+def stale_note(sec: Section, why: str) -> str:
+    return (
+        f"> **Stale:** {why}: these numbers may no longer hold. Rerun: "
+        f"`.venv/bin/python benchmarks/make_results.py --only {sec.name}`\n\n"
+    )
+
+
+def mark_stale(path: Path = OUT) -> list[str]:
+    """Put :func:`stale_note` under the heading of every stale section of ``path`` and take it
+    from the fresh ones; returns the stale sections' names."""
+    text = path.read_text()
+    stale = []
+    for sec in SECTIONS:
+        stamp, body = sections_in(text).get(sec.name, ({}, ""))
+        if not body:
+            continue
+        why = staleness(sec, stamp)
+        head, rest = body.split("\n\n", 1)  # the marker and the heading, then the rest
+        rest = STALE_NOTE.sub("", rest, count=1)
+        if why:
+            stale.append(sec.name)
+            rest = stale_note(sec, why) + rest
+        text = text.replace(body, f"{head}\n\n{rest}")
+    path.write_text(text)
+    return stale
+
+
 def derived_stamp(name: str) -> str:
     """For an unstamped section: the newest commit among the lines of its text in docs/results.md
     at HEAD (``git blame``), as ``rev=... date=... derived``."""
@@ -731,6 +763,10 @@ def main(argv: list[str] | None = None) -> int:
         "--stale", action="store_true", help="list the sections older than their code; run nothing"
     )
     ap.add_argument(
+        "--mark-stale", action="store_true",
+        help="note under each stale section's heading that it is stale (and take the note from fresh ones)",
+    )  # fmt: skip
+    ap.add_argument(
         "--stamp-derived", action="store_true",
         help="stamp unstamped sections with the commit that last changed their text (marked derived)",
     )  # fmt: skip
@@ -740,7 +776,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.stale:
         lines = stale_report()
         print("\n".join(lines) + f"\n{len(lines)} of {len(SECTIONS)} sections are stale")
-    if args.stale or args.stamp_derived:
+    if args.mark_stale:
+        print(f"{len(mark_stale())} of {len(SECTIONS)} sections marked stale in {OUT}")
+    if args.stale or args.stamp_derived or args.mark_stale:
         return 0
     reuse = dict(item.split("=", 1) for item in args.reuse)
     if args.only == "stale":
@@ -768,8 +806,9 @@ def write(name: str, text: str) -> None:
         "machine; the real pairs are `../shared/data/pairs` (22 DEV pairs: its TUM RGB-D pair is held out, "
         "TUM images being reserved for independent checks; older sections say when they ran on 23, or on the "
         "first 18). Each section shows the command "
-        "that produced it, and the revision and date it was generated at (`make results-stale` lists the "
-        "sections whose code changed since). Why the defaults are what they are: docs/architecture.md.\n"
+        "that produced it, and the revision and date it was generated at; a section whose code changed "
+        "since carries a **Stale** note under its heading (`make results-stale` lists them). "
+        "Why the defaults are what they are: docs/architecture.md.\n"
     ]
     for sec in SECTIONS:
         if sec.name == name:

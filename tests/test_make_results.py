@@ -56,3 +56,19 @@ def test_every_section_of_results_md_is_stamped(mr):
     found = mr.sections_in(mr.OUT.read_text())
     assert set(found) == {s.name for s in mr.SECTIONS}
     assert [name for name, (stamp, _) in found.items() if not stamp.get("rev") or not stamp.get("date")] == []
+
+
+def test_a_stale_section_says_so_under_its_heading_and_a_fresh_one_does_not(mr, tmp_path):
+    fresh, old = (next(s for s in mr.SECTIONS if s.name == n) for n in ("render", "speed"))
+    stale_text = mr.format_section(old, "| a | 1 |", 5.0).replace(" code=", " code=0000")
+    doc = tmp_path / "results.md"
+    doc.write_text("# Results\n\n" + mr.format_section(fresh, "| b | 2 |", 3.0) + "\n" + stale_text)
+    assert mr.mark_stale(doc) == ["speed"]
+    marked = mr.sections_in(doc.read_text())
+    assert "> **Stale:** code changed since" in marked["speed"][1]
+    assert "--only speed`" in marked["speed"][1] and "| a | 1 |" in marked["speed"][1]
+    assert "Stale" not in marked["render"][1]
+    # Marking twice leaves one note; once the section is fresh again, the note goes.
+    assert mr.mark_stale(doc) == ["speed"] and doc.read_text().count("> **Stale:**") == 1
+    doc.write_text(doc.read_text().replace(marked["speed"][1], mr.format_section(old, "| a | 1 |", 5.0)))
+    assert mr.mark_stale(doc) == [] and "Stale" not in doc.read_text()
