@@ -961,6 +961,13 @@ class ScreenConfig:
         "the hole by the ring surface's homography, shows it: a normalised cross-correlation of it and its "
         "outline of at least this. Lower finds blurred copies, but also background that resembles it.",
     )
+    refuse_like_object: bool = setting(
+        True,
+        "Also refuse render content that the ring around the hole does not explain but the hole's own "
+        "unexplained content (the object) does: the object, or a passer-by like it, coming back from a "
+        "reference wherever the render puts it. Compared patch by patch (5-px CIELAB patches, nearest "
+        "neighbours), within the distance at which the ring's own patches explain each other.",
+    )
     surface_search_px: Annotated[float, Range(0, 1000)] = setting(
         16.0,
         "That match is searched within this distance (px) of where the surface puts it (the pose and the "

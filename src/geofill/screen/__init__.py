@@ -27,13 +27,15 @@ from typing import Any
 import cv2
 import numpy as np
 
-from ..config import FillConfig
+from ..config import FillConfig, ScreenConfig
+from ..utils.distance import known_ring
+from ..utils.resolution import config_px, odd_px
 from ..refine import RefinedRender
 from ..render import RenderResult
 from .appearance import locate_by_appearance
 from .depth import DepthLocation, locate_by_depth, locate_together
-from .strangers import strangers
-from .surface import locate_on_surface
+from .strangers import strangers, watershed_region
+from .surface import like_the_object, locate_on_surface
 
 __all__ = [
     "DepthLocation",
@@ -142,6 +144,10 @@ def screen_render(
             refused_object[rows, cols] = _sampled(location.source, field, rows, cols) & covered
         if object_seen is not None:
             refused_object |= object_seen & ~refined.alpha
+        if sc.refuse_like_object:
+            refused_object[rows, cols] |= covered & _like_the_object(
+                field.sample_window(source), shown[rows, cols], hole[rows, cols], hole.shape, sc
+            )
     refused = np.zeros(hole.shape, bool)
     for r in (refused_masked, refused_object):
         if r is not None:
@@ -186,3 +192,38 @@ def _sampled(mask: np.ndarray, field: RenderResult, rows: slice, cols: slice) ->
         )
         > 0
     )  # fmt: skip
+
+
+#: Long side (px) at which :func:`like_the_object` compares a render with the hole's content: the
+#: ring's patch statistics need no finer detail, and the k-d tree queries grow with the hole's area.
+LIKE_TEST_SIDE = 320
+
+
+def _like_the_object(
+    render: np.ndarray, shown: np.ndarray, hole: np.ndarray, shape: tuple[int, ...], sc: ScreenConfig
+) -> np.ndarray:
+    """:func:`~geofill.screen.surface.like_the_object` in a window (``render``, ``shown`` and
+    ``hole`` of the same size), run with its long side at most :data:`LIKE_TEST_SIDE` against the
+    ring of ``sc.surface_ring_px``; specks under ``sc.stranger_min_px`` are opened away (texture
+    the ring happens not to hold) and the rest grown by the watershed. ``shape``: the full target's, for pixel scaling."""
+    h, w = hole.shape
+    f = min(1.0, LIKE_TEST_SIDE / max(h, w))
+    size = (max(round(w * f), 1), max(round(h * f), 1))
+    px = config_px(1.0, shape) * f
+    small = cv2.resize(hole.astype(np.uint8), size, interpolation=cv2.INTER_NEAREST) > 0
+    markers = like_the_object(
+        cv2.resize(render, size, interpolation=cv2.INTER_AREA),
+        cv2.resize(shown, size, interpolation=cv2.INTER_AREA),
+        small,
+        known_ring(small, sc.surface_ring_px * px),
+    )
+    m = max(3, odd_px(sc.stranger_min_px / 2 * px))
+    seeds = cv2.morphologyEx((markers == 1).astype(np.uint8), cv2.MORPH_OPEN, np.ones((m, m), np.uint8))
+    if not seeds.any():
+        return np.zeros(hole.shape, bool)
+    # Grown over the render's own edges (OpenCV's watershed) until content the ring explains: the
+    # object's blended outline and shading are no longer like its sharp self in the hole.
+    markers[markers == 1] = 0
+    markers[seeds > 0] = 1
+    found = watershed_region(cv2.resize(render, size, interpolation=cv2.INTER_AREA), markers) & small
+    return (cv2.resize(found.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) > 0) & hole

@@ -17,6 +17,9 @@ not where the surface puts the object and is not taken.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import Any
+
 import cv2
 import numpy as np
 
@@ -52,39 +55,101 @@ def unexplained(shown: np.ndarray, hole: np.ndarray, ring: np.ndarray) -> np.nda
     >>> bool(core[17:23, 17:23].all()), float(core[hole].mean()) < 0.5
     (True, True)
     """
-    lab = cv2.cvtColor(np.ascontiguousarray(shown), cv2.COLOR_RGB2LAB).astype(np.float32)
-    r = _PATCH_PX // 2
-    padded = cv2.copyMakeBorder(lab, r, r, r, r, cv2.BORDER_REFLECT)
-    oy, ox = (o.ravel() for o in np.mgrid[0:_PATCH_PX, 0:_PATCH_PX])
-
-    def patches(ys: np.ndarray, xs: np.ndarray) -> np.ndarray:
-        return padded[ys[:, None] + oy, xs[:, None] + ox].reshape(len(ys), -1)
-
-    ry, rx = np.nonzero(ring)
-    step = max(1, len(ry) // _MAX_RING_PATCHES)
-    ry, rx = ry[::step], rx[::step]
-    hy, hx = np.nonzero(hole)
     out = np.zeros(hole.shape, bool)
-    if len(ry) < 2 * _NEIGHBOURS or len(hy) == 0:
+    space = _RingPatches.of(shown, ring)
+    hy, hx = np.nonzero(hole)
+    if space is None or len(hy) == 0:
         return out
-    ring_p, hole_p = patches(ry, rx), patches(hy, hx)
-    # Imported here: scipy.spatial (with scipy.sparse) costs a process 0.2 s to import, and most
-    # fills never run this test.
+    out[hy, hx] = space.distance(space.patches(shown, hy, hx)) > space.scale
+    return out
+
+
+def like_the_object(render: np.ndarray, shown: np.ndarray, hole: np.ndarray, ring: np.ndarray) -> np.ndarray:
+    """HxW int32 watershed markers: 1 on the ``hole`` pixels where ``render`` (HxWx3 uint8, a reference's colours rendered
+    into the target) shows what only the object shows: its CIELAB patch is unexplained by the
+    ``ring`` of ``shown`` (as in :func:`unexplained`) and nearer to a patch of the hole's own
+    unexplained content (the object ``shown`` holds) as the ring's patches are to each other. The
+    object, or a
+    passer-by dressed like the one brushed out, coming back; background the reference sees
+    behind the object is either explained by the ring (the brushed margin) or unlike the object.
+    2 where the ring explains the render's patch, 0 elsewhere.
+
+    >>> rng = np.random.default_rng(0)
+    >>> img = (rng.random((40, 40, 3)) * 60 + 100).astype(np.uint8); hole = np.zeros((40, 40), bool)
+    >>> hole[10:30, 10:30] = True; shown = img.copy(); shown[14:26, 14:26] = (200, 20, 20)
+    >>> render = img.copy(); render[12:20, 20:28] = (205, 25, 15); render[22:28, 12:18] = (20, 20, 200)
+    >>> found = like_the_object(render, shown, hole, ~hole) == 1
+    >>> bool(found[14:18, 22:26].all()), bool(found[23:27, 13:17].any())  # red comes back, blue is new
+    (True, False)
+    """
+    out = np.zeros(hole.shape, np.int32)
+    space = _RingPatches.of(shown, ring)
+    hy, hx = np.nonzero(hole)
+    if space is None or len(hy) == 0:
+        return out
+    own = space.patches(shown, hy, hx)
+    core = space.distance(own) > space.scale
+    if not core.any():
+        return out
     from scipy.spatial import cKDTree
 
-    mean = ring_p.mean(axis=0)
-    centred = ring_p - mean
-    basis = np.linalg.eigh(centred.T @ centred)[1][:, ::-1][:, :_COMPONENTS]  # principal axes
-    tree = cKDTree((ring_p - mean) @ basis)
-    dist, idx = tree.query((ring_p - mean) @ basis, k=_NEIGHBOURS)
-    apart = np.hypot(ry[idx] - ry[:, None], rx[idx] - rx[:, None]) > _PATCH_PX
-    own = np.where(apart, dist, np.inf).min(axis=1)
-    own = own[np.isfinite(own)]
-    if own.size == 0:
-        return out
-    scale = float(np.percentile(own, _RING_PERCENTILE))
-    out[hy, hx] = tree.query((hole_p - mean) @ basis)[0] > scale
+    rendered = space.patches(render, hy, hx)
+    d_ring = space.distance(rendered)
+    d_core = cKDTree(space.reduce(own[core])).query(space.reduce(rendered))[0]
+    out[hy, hx] = np.where(d_ring <= space.scale, 2, np.where(d_core <= space.scale, 1, 0))
     return out
+
+
+@dataclass(frozen=True)
+class _RingPatches:
+    """The ring's CIELAB patches in their principal components, with a k-d tree over them and the
+    distance (``scale``) within which the ring's patches explain each other."""
+
+    mean: np.ndarray
+    basis: np.ndarray
+    tree: Any
+    scale: float
+
+    @staticmethod
+    def patches(image: np.ndarray, ys: np.ndarray, xs: np.ndarray) -> np.ndarray:
+        """(N, 3 * :data:`_PATCH_PX` ** 2) float32: ``image``'s CIELAB patches centred on (ys, xs)."""
+        lab = cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_RGB2LAB).astype(np.float32)
+        r = _PATCH_PX // 2
+        padded = cv2.copyMakeBorder(lab, r, r, r, r, cv2.BORDER_REFLECT)
+        oy, ox = (o.ravel() for o in np.mgrid[0:_PATCH_PX, 0:_PATCH_PX])
+        return padded[ys[:, None] + oy, xs[:, None] + ox].reshape(len(ys), -1)
+
+    def reduce(self, patches: np.ndarray) -> np.ndarray:
+        return (patches - self.mean) @ self.basis
+
+    def distance(self, patches: np.ndarray) -> np.ndarray:
+        """Each patch's distance to its nearest ring patch."""
+        return self.tree.query(self.reduce(patches))[0]
+
+    @classmethod
+    def of(cls, image: np.ndarray, ring: np.ndarray) -> _RingPatches | None:
+        """``image``'s ``ring`` patches (at most :data:`_MAX_RING_PATCHES`), or None where too few."""
+        ry, rx = np.nonzero(ring)
+        step = max(1, len(ry) // _MAX_RING_PATCHES)
+        ry, rx = ry[::step], rx[::step]
+        if len(ry) < 2 * _NEIGHBOURS:
+            return None
+        ring_p = cls.patches(image, ry, rx)
+        # Imported here: scipy.spatial (with scipy.sparse) costs a process 0.2 s to import, and most
+        # fills never run this test.
+        from scipy.spatial import cKDTree
+
+        mean = ring_p.mean(axis=0)
+        centred = ring_p - mean
+        basis = np.linalg.eigh(centred.T @ centred)[1][:, ::-1][:, :_COMPONENTS]  # principal axes
+        tree = cKDTree(centred @ basis)
+        dist, idx = tree.query(centred @ basis, k=_NEIGHBOURS)
+        apart = np.hypot(ry[idx] - ry[:, None], rx[idx] - rx[:, None]) > _PATCH_PX
+        own = np.where(apart, dist, np.inf).min(axis=1)
+        own = own[np.isfinite(own)]
+        if own.size == 0:
+            return None
+        return cls(mean, basis, tree, float(np.percentile(own, _RING_PERCENTILE)))
 
 
 def locate_on_surface(
