@@ -28,10 +28,10 @@ import cv2
 import numpy as np
 
 from ..config import FillConfig, ScreenConfig
-from ..utils.distance import known_ring
-from ..utils.resolution import config_px, odd_px
 from ..refine import RefinedRender
 from ..render import RenderResult
+from ..utils.distance import known_ring
+from ..utils.resolution import config_px, odd_px
 from .appearance import locate_by_appearance
 from .depth import DepthLocation, locate_by_depth, locate_together
 from .strangers import strangers, watershed_region
@@ -205,7 +205,8 @@ def _like_the_object(
     """:func:`~geofill.screen.surface.like_the_object` in a window (``render``, ``shown`` and
     ``hole`` of the same size), run with its long side at most :data:`LIKE_TEST_SIDE` against the
     ring of ``sc.surface_ring_px``; specks under ``sc.stranger_min_px`` are opened away (texture
-    the ring happens not to hold) and the rest grown by the watershed. ``shape``: the full target's, for pixel scaling."""
+    the ring happens not to hold) and the rest grown by the watershed. ``shape``: the full
+    target's, for pixel scaling."""
     h, w = hole.shape
     f = min(1.0, LIKE_TEST_SIDE / max(h, w))
     size = (max(round(w * f), 1), max(round(h * f), 1))
