@@ -67,12 +67,11 @@ def unexplained(shown: np.ndarray, hole: np.ndarray, ring: np.ndarray) -> np.nda
 def like_the_object(render: np.ndarray, shown: np.ndarray, hole: np.ndarray, ring: np.ndarray) -> np.ndarray:
     """HxW int32 watershed markers: 1 on the ``hole`` pixels where ``render`` (HxWx3 uint8, a
     reference's colours rendered into the target) shows what only the object shows: its CIELAB
-    patch is unexplained by the ``ring`` of ``shown`` (as in :func:`unexplained`) and nearer to a patch of the hole's own
-    unexplained content (the object ``shown`` holds) as the ring's patches are to each other. The
-    object, or a
-    passer-by dressed like the one brushed out, coming back; background the reference sees
-    behind the object is either explained by the ring (the brushed margin) or unlike the object.
-    2 where the ring explains the render's patch, 0 elsewhere.
+    patch is unexplained by the ``ring`` of ``shown`` (as in :func:`unexplained`) and as near to a
+    patch of the hole's own unexplained content (the object ``shown`` holds) as the ring's patches
+    are to each other. The object, or a passer-by dressed like the one brushed out, coming back;
+    background the reference sees behind the object is either explained by the ring (the brushed
+    margin) or unlike the object. 2 where the ring explains the render's patch, 0 elsewhere.
 
     >>> rng = np.random.default_rng(0)
     >>> img = (rng.random((40, 40, 3)) * 60 + 100).astype(np.uint8); hole = np.zeros((40, 40), bool)
