@@ -10,7 +10,8 @@ per test:
   where it reaches beyond the hole, what continues it into the hole is refused. Runs on every fill.
 - :mod:`.surface` -- what the hole shows that its ring does not explain (an object flat on the
   surface, or the part of one the depth test did not place), found in the reference where the ring
-  surface's homography puts it.
+  surface's homography puts it; and, in every render, content the ring does not explain but that
+  hole content does (the object, or a passer-by like it, wherever the render puts it).
 - :mod:`.appearance` -- where neither locates anything in a reference (an object that moves with
   the camera), the hole's content located there by its look.
 - Reference pixels the user masked (``source_masks``) are never rendered.
