@@ -213,8 +213,9 @@ def _like_the_object(
     size = (max(round(w * f), 1), max(round(h * f), 1))
     px = config_px(1.0, shape) * f
     small = cv2.resize(hole.astype(np.uint8), size, interpolation=cv2.INTER_NEAREST) > 0
+    small_render = cv2.resize(render, size, interpolation=cv2.INTER_AREA)
     markers = like_the_object(
-        cv2.resize(render, size, interpolation=cv2.INTER_AREA),
+        small_render,
         cv2.resize(shown, size, interpolation=cv2.INTER_AREA),
         small,
         known_ring(small, sc.surface_ring_px * px),
@@ -227,5 +228,5 @@ def _like_the_object(
     # object's blended outline and shading are no longer like its sharp self in the hole.
     markers[markers == 1] = 0
     markers[seeds > 0] = 1
-    found = watershed_region(cv2.resize(render, size, interpolation=cv2.INTER_AREA), markers) & small
+    found = watershed_region(small_render, markers) & small
     return (cv2.resize(found.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) > 0) & hole
