@@ -10,7 +10,10 @@ the others from the previous file.
 
 Every section is stamped with the revision (git short hash, "+ uncommitted changes" where the code
 it ran differed from it) and the date it was generated, and a digest of the code it depends on
-(:func:`dependencies`: ``src/geofill``, ``benchmarks/common.py`` and the scripts its command names).
+(:func:`dependencies`: the geofill and benchmark modules its command's processes imported, recorded
+in ``benchmarks/results_deps.json``, and the scripts its command names; for a section generated
+before that was recorded, all of ``src/geofill`` and ``benchmarks/common.py``). A change to the
+painter thus stales the sections that fill, not the renderer's or the stereo's own benchmarks.
 ``--stale`` lists the sections whose code changed since (their digest, or for a stamp without one
 the files changed since its revision), with what each took to generate; ``--only stale`` reruns them.
 ``--stamp-derived`` stamps sections that have no stamp with the commit that last changed their text
@@ -22,6 +25,8 @@ from __future__ import annotations
 import argparse
 import datetime
 import hashlib
+import json
+import os
 import re
 import shlex
 import subprocess
@@ -543,8 +548,13 @@ SECTIONS = [
 ]
 
 
-#: Paths (relative to the repository) every section's numbers depend on, besides its own scripts.
+#: Paths (relative to the repository) a section's numbers depend on, besides its own scripts, when
+#: what its command imports was not recorded.
 CODE = ("src/geofill", "benchmarks/common.py")
+#: Folder whose ``sitecustomize.py`` logs the geofill and benchmarks modules a command's processes import.
+RECORDER = ROOT / "benchmarks" / "record_imports"
+#: Per section, the files its command's processes imported when it last ran (written with docs/results.md).
+DEPS = ROOT / "benchmarks" / "results_deps.json"
 #: A section's start marker, with its stamp: ``rev=`` (short hash), ``date=``, then ``code=`` (the
 #: digest of its dependencies) or ``derived`` (rev and date from docs/results.md's history).
 MARKER = re.compile(r"<!-- section:(?P<name>\w+)(?P<stamp>(?: [\w=+.-]+)*) -->")
@@ -555,26 +565,60 @@ def git(*args: str) -> str:
 
 
 def dependencies(sec: Section) -> list[str]:
-    """The paths whose change makes ``sec``'s numbers stale: the package, the shared helpers, and
+    """The paths whose change makes ``sec``'s numbers stale: the package's modules and the benchmark
+    modules its command's processes imported when it last ran (:data:`DEPS`, recorded by
+    :data:`RECORDER`), or where none were recorded the whole package and the shared helpers; and
     every benchmark script its command runs."""
-    return [*CODE, *(c for c in sec.command if c.startswith("benchmarks/") and c.endswith(".py"))]
+    recorded = json.loads(DEPS.read_text()).get(sec.name) if DEPS.is_file() else None
+    return [*(recorded or CODE), *_scripts(sec)]
 
 
-def code_digest(paths: list[str]) -> str:
-    """A digest of the working tree's files under ``paths`` (tracked and untracked, not ignored)."""
+def _scripts(sec: Section) -> list[str]:
+    return [c for c in sec.command if c.startswith("benchmarks/") and c.endswith(".py")]
+
+
+def module_files(modules: set[str]) -> list[str]:
+    """The repository's files behind ``modules`` (dotted names under geofill or benchmarks): each
+    module's source, and for a package every data file below it (the server's page, for one)."""
+    files = set()
+    for name in modules:
+        base = ROOT / ("src" if name.partition(".")[0] == "geofill" else "") / name.replace(".", "/")
+        if (base / "__init__.py").is_file():
+            files.add(base / "__init__.py")
+            files.update(f for f in base.rglob("*") if f.is_file() and f.suffix not in (".py", ".pyc"))
+        elif base.with_suffix(".py").is_file():
+            files.add(base.with_suffix(".py"))
+    return sorted(str(f.relative_to(ROOT)) for f in files)
+
+
+def code_digest(paths: list[str], hashes: dict[str, bytes] | None = None) -> str:
+    """A digest of the working tree's files under ``paths`` (tracked and untracked, not ignored);
+    with ``hashes`` (:func:`file_hashes`), of those files as they were when it was taken."""
     h = hashlib.sha256()
-    for name in sorted(git("ls-files", "-co", "--exclude-standard", "--", *paths).split("\n")):
-        if name and (ROOT / name).is_file():
-            h.update(name.encode() + b"\0" + hashlib.sha256((ROOT / name).read_bytes()).digest())
+    for name, digest in sorted(file_hashes(paths).items() if hashes is None else _under(hashes, paths)):
+        h.update(name.encode() + b"\0" + digest)
     return h.hexdigest()[:16]
 
 
-def new_stamp(sec: Section) -> str:
-    """The stamp of a section generated now from this working tree."""
+def file_hashes(paths: list[str]) -> dict[str, bytes]:
+    """SHA-256 of every file under ``paths`` (tracked and untracked, not ignored) in the working tree."""
+    names = git("ls-files", "-co", "--exclude-standard", "--", *paths).split("\n")
+    return {n: hashlib.sha256((ROOT / n).read_bytes()).digest() for n in names if n and (ROOT / n).is_file()}
+
+
+def _under(hashes: dict[str, bytes], paths: list[str]) -> list[tuple[str, bytes]]:
+    prefixes = tuple(p.rstrip("/") + "/" for p in paths)
+    return [(n, d) for n, d in hashes.items() if n in paths or n.startswith(prefixes)]
+
+
+def new_stamp(sec: Section, deps: list[str] | None = None, hashes: dict[str, bytes] | None = None) -> str:
+    """The stamp of a section generated now from this working tree (with ``deps`` and ``hashes``:
+    from those files as :func:`file_hashes` found them when its command started)."""
+    deps = dependencies(sec) if deps is None else deps
     rev = git("rev-parse", "--short", "HEAD").strip()
-    if git("status", "--porcelain", "--", *dependencies(sec)).strip():
+    if git("status", "--porcelain", "--", *deps).strip():
         rev += "+uncommitted"
-    return f" rev={rev} date={datetime.date.today().isoformat()} code={code_digest(dependencies(sec))}"
+    return f" rev={rev} date={datetime.date.today().isoformat()} code={code_digest(deps, hashes)}"
 
 
 def parse_stamp(stamp: str) -> dict[str, str]:
@@ -712,18 +756,26 @@ def stamp_derived() -> list[str]:
     return done
 
 
-def run_section(sec: Section, reuse: Path | None = None) -> str:
+def run_section(sec: Section, reuse: Path | None = None) -> tuple[str, list[str] | None]:
     """Run ``sec``'s command and format its result; with ``reuse``, a folder an earlier run of the
-    same command wrote its results to, take them from there instead (for eval sections)."""
-    stamp = new_stamp(sec)  # the code as the command starts (it may change while it runs)
-    with tempfile.TemporaryDirectory() as tmp:
+    same command wrote its results to, take them from there instead (for eval sections). Returns
+    the section's text and the package and benchmark files its processes imported (None when
+    nothing was run or recorded: the section then depends on all of them)."""
+    hashes = file_hashes([*CODE, "benchmarks", *_scripts(sec)])  # the code as the command starts
+    with tempfile.TemporaryDirectory() as tmp, tempfile.TemporaryDirectory() as logs:
         cmd = [c.replace("{out}", tmp) for c in sec.command]
+        log = Path(logs) / "imports"
+        env = {
+            **os.environ,
+            "GEOFILL_IMPORT_LOG": str(log),
+            "PYTHONPATH": os.pathsep.join(p for p in (str(RECORDER), os.environ.get("PYTHONPATH")) if p),
+        }
         t0 = time.perf_counter()
         if reuse is not None:
             proc = subprocess.CompletedProcess(cmd, 0, "", "")
             tmp = str(reuse)
         else:
-            proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
+            proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, env=env)
         took = time.perf_counter() - t0
         if proc.returncode != 0:
             body = f"FAILED (exit {proc.returncode}):\n{proc.stderr[-3000:]}"
@@ -731,7 +783,11 @@ def run_section(sec: Section, reuse: Path | None = None) -> str:
             body = (Path(tmp) / sec.result_file).read_text()
         else:
             body = proc.stdout
-    return format_section(sec, body, None if reuse is not None else took, stamp)
+        # A command run as ``python -m module`` is run, not imported: the hook does not see it.
+        modules = {cmd[i + 1] for i, c in enumerate(cmd[:-1]) if c == "-m"}
+        recorded = module_files(modules | set(log.read_text().split())) if log.is_file() else None
+    stamp = new_stamp(sec, [*(recorded or CODE), *_scripts(sec)], hashes)
+    return format_section(sec, body, None if reuse is not None else took, stamp), recorded
 
 
 def format_section(sec: Section, body: str, took: float | None, stamp: str | None = None) -> str:
@@ -790,16 +846,21 @@ def main(argv: list[str] | None = None) -> int:
     for sec in SECTIONS:
         if sec.name in wanted:
             print(f"running {sec.name} ...", file=sys.stderr, flush=True)
-            write(
-                sec.name, run_section(sec, Path(reuse[sec.name]) if sec.name in reuse else None)
-            )  # after each section: a long run keeps what it finished
+            text, recorded = run_section(sec, Path(reuse[sec.name]) if sec.name in reuse else None)
+            write(sec.name, text, recorded)  # after each section: a long run keeps what it finished
     print(f"wrote {OUT}", file=sys.stderr)
     return 0
 
 
-def write(name: str, text: str) -> None:
-    """Replace section ``name`` of docs/results.md with ``text``; every other section is kept as the
-    file has it now (so separate ``--only`` runs can update different sections)."""
+def write(name: str, text: str, recorded: list[str] | None = None) -> None:
+    """Replace section ``name`` of docs/results.md with ``text`` and its recorded dependencies in
+    :data:`DEPS` with ``recorded``; every other section is kept as the files have it now (so
+    separate ``--only`` runs can update different sections)."""
+    deps = json.loads(DEPS.read_text()) if DEPS.is_file() else {}
+    deps.pop(name, None)
+    if recorded:
+        deps[name] = recorded
+    DEPS.write_text(json.dumps(dict(sorted(deps.items())), indent=1) + "\n")
     found = sections_in(OUT.read_text() if OUT.exists() else "")
     parts = [
         "# Results\n\nGenerated by `make results` (benchmarks/make_results.py) on this project's 2-core CPU "

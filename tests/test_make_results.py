@@ -72,3 +72,37 @@ def test_a_stale_section_says_so_under_its_heading_and_a_fresh_one_does_not(mr, 
     assert mr.mark_stale(doc) == ["speed"] and doc.read_text().count("> **Stale:**") == 1
     doc.write_text(doc.read_text().replace(marked["speed"][1], mr.format_section(old, "| a | 1 |", 5.0)))
     assert mr.mark_stale(doc) == [] and "Stale" not in doc.read_text()
+
+
+def test_a_section_depends_on_the_modules_its_processes_imported_and_goes_stale_only_with_them(
+    mr, tmp_path, monkeypatch
+):
+    monkeypatch.setattr(mr, "DEPS", tmp_path / "deps.json")
+    monkeypatch.setattr(mr, "OUT", tmp_path / "results.md")
+    # The renderer in the command's process, the focal module in a forked worker (which leaves
+    # without running exit handlers).
+    code = (
+        "import multiprocessing as mp\nimport geofill.render\n"
+        "def child(_):\n    import geofill.focal\n    return 0\n"
+        "if __name__ == '__main__':\n    with mp.get_context('fork').Pool(1) as p:\n        p.map(child, [0])\n"
+        "    print('done')\n"
+    )
+    sec = mr.Section("imports", "Imports", "", [mr.PY, "-c", code])
+    text, recorded = mr.run_section(sec)
+    assert "done" in text
+    assert {"src/geofill/__init__.py", "src/geofill/render.py", "src/geofill/focal.py"} <= set(recorded)
+    assert "src/geofill/pipeline.py" not in recorded and "src/geofill/screen/surface.py" not in recorded
+    mr.write("imports", text, recorded)
+    assert mr.dependencies(sec) == recorded
+    stamp = mr.sections_in(text)["imports"][0]
+    assert mr.staleness(sec, stamp) == ""
+    # A change to a module it did not import leaves it fresh; one to a module it did, stale.
+    hashes = mr.file_hashes
+
+    def changed(name):
+        return lambda paths: {n: (b"x" if n == name else d) for n, d in hashes(paths).items()}
+
+    monkeypatch.setattr(mr, "file_hashes", changed("src/geofill/screen/surface.py"))
+    assert mr.staleness(sec, stamp) == ""
+    monkeypatch.setattr(mr, "file_hashes", changed("src/geofill/focal.py"))
+    assert mr.staleness(sec, stamp).startswith("code changed since")
