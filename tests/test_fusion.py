@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 
 from geofill.camera import Intrinsics
-from geofill.composite.inpaint import mask_window
 from geofill.config import FillConfig
 from geofill.fuse import Fusion, fuse_references, gaussian_blur
 from geofill.render import RenderResult
 from geofill.utils.distance import known_ring
+from geofill.utils.windows import mask_window
 
 
 def _single_reference(index: int = 2):

@@ -84,8 +84,8 @@ def test_a_section_depends_on_the_modules_its_processes_imported_and_goes_stale_
     code = (
         "import multiprocessing as mp\nimport geofill.render\n"
         "def child(_):\n    import geofill.focal\n    return 0\n"
-        "if __name__ == '__main__':\n    with mp.get_context('fork').Pool(1) as p:\n        p.map(child, [0])\n"
-        "    print('done')\n"
+        "if __name__ == '__main__':\n    with mp.get_context('fork').Pool(1) as p:\n"
+        "        p.map(child, [0])\n    print('done')\n"
     )
     sec = mr.Section("imports", "Imports", "", [mr.PY, "-c", code])
     text, recorded = mr.run_section(sec)

@@ -7,9 +7,10 @@ import cv2
 import numpy as np
 import pytest
 
-from geofill.composite.inpaint import Inpainter, get_inpainter, mask_window
+from geofill.composite.inpaint import Inpainter, get_inpainter
 from geofill.composite.merge import blend_map, merge_fill
 from geofill.config import InpaintConfig
+from geofill.utils.windows import mask_window
 
 
 def _scene(h: int = 240, w: int = 320, seed: int = 0):

@@ -26,7 +26,6 @@ import cv2
 import numpy as np
 
 from .camera import Intrinsics
-from .composite.inpaint import mask_window
 from .config import RenderConfig
 from .errors import ReferenceUnusable
 from .utils.resolution import config_px
@@ -35,6 +34,7 @@ if TYPE_CHECKING:
     from .optimize.stage import Geometry
     from .screen.depth import DepthLocation
 from .utils.jit import njit_cached
+from .utils.windows import mask_window
 
 #: Barycentric tolerance so pixels on shared edges are not lost between two triangles.
 _EPS_BARY = 1e-7

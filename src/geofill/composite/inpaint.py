@@ -34,6 +34,7 @@ import numpy as np
 from ..config import InpaintConfig
 from ..errors import InpaintModelError, MissingExtraError
 from ..extras import available, require
+from ..utils.windows import mask_window
 from ..weights import ResolvedWeights, WeightsSpec, WeightsUnavailable, resolve_weights
 from .planes import SceneDepth
 
@@ -53,18 +54,6 @@ LAMA_WEIGHTS = WeightsSpec(
 )
 #: Loaded LaMa sessions by resolved path: loading a 200 MB model costs seconds, every fill reuses it.
 _LAMA_CACHE: dict[Path, Callable[[np.ndarray, np.ndarray], np.ndarray]] = {}
-
-
-def mask_window(mask: np.ndarray, margin: int | None) -> tuple[slice, slice]:
-    """Rows and columns of ``mask``'s bounding box grown by ``margin`` px and clipped to the image
-    (the whole image when ``margin`` is None or the mask is empty)."""
-    rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
-    if margin is None or not rows.size:
-        return slice(0, mask.shape[0]), slice(0, mask.shape[1])
-    return (
-        slice(max(int(rows[0]) - margin, 0), min(int(rows[-1]) + margin + 1, mask.shape[0])),
-        slice(max(int(cols[0]) - margin, 0), min(int(cols[-1]) + margin + 1, mask.shape[1])),
-    )
 
 
 @dataclass(frozen=True)

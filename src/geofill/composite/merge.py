@@ -12,7 +12,8 @@ import cv2
 import numpy as np
 
 from ..utils.distance import distance_to
-from .inpaint import Inpainter, mask_window
+from ..utils.windows import mask_window
+from .inpaint import Inpainter
 from .planes import SceneDepth
 
 

@@ -36,11 +36,11 @@ from typing import TYPE_CHECKING, Any
 import cv2
 import numpy as np
 
-from ..composite.inpaint import mask_window
 from ..config import FillConfig, FusionConfig
 from ..screen.strangers import shifted_min_diff
 from ..utils.distance import known_ring
 from ..utils.resolution import config_px, odd_px
+from ..utils.windows import mask_window
 from .vote import cross_strangers
 
 if TYPE_CHECKING:

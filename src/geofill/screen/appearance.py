@@ -16,7 +16,6 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from ..composite.inpaint import mask_window
 from ..config import FillConfig
 from ..focal import FocalEstimate
 from ..match import Matches
@@ -26,6 +25,7 @@ from ..pose import PoseEstimate
 from ..prepare import WorkingViews
 from ..utils.resolution import config_px, odd_px, resize_long
 from ..utils.rotations import skew
+from ..utils.windows import mask_window
 
 #: Side (px at 1280) of the patches that verify the homography, and the mean absolute difference
 #: (0-255) under which the warped hole content and the reference agree there.

@@ -29,13 +29,13 @@ import cv2
 import numpy as np
 
 from ..camera import Intrinsics
-from ..composite.inpaint import mask_window
 from ..config import ScreenConfig
 from ..render import RenderResult
 from ..utils.distance import known_ring
 from ..utils.membrane import membrane_fill
 from ..utils.numerics import robust_linear_fit
 from ..utils.resolution import config_px, odd_px
+from ..utils.windows import mask_window
 from .strangers import watershed_region
 
 #: Long side (px) of the hole's window in which the sweep runs: it separates regions tens of pixels

@@ -7,4 +7,5 @@
 - :mod:`~geofill.utils.resolution`: sizes in px at the 1280-px reference converted to an image's scale.
 - :mod:`~geofill.utils.residual_flow`: the refinement's residual optical flow.
 - :mod:`~geofill.utils.rotations`: SO(3) and S² helpers (skew matrices, left Jacobian, tangent bases).
+- :mod:`~geofill.utils.windows`: the window round the hole a stage works in.
 """
