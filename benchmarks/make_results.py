@@ -579,16 +579,31 @@ def _scripts(sec: Section) -> list[str]:
 
 def module_files(modules: set[str]) -> list[str]:
     """The repository's files behind ``modules`` (dotted names under geofill or benchmarks): each
-    module's source, and for a package every data file below it (the server's page, for one)."""
+    module's source, and for a geofill package every data file below it (the server's page, for
+    one; numba's caches aside). The benchmarks' data files are named by their commands."""
     files = set()
     for name in modules:
-        base = ROOT / ("src" if name.partition(".")[0] == "geofill" else "") / name.replace(".", "/")
+        package = name.partition(".")[0] == "geofill"
+        base = ROOT / ("src" if package else "") / name.replace(".", "/")
         if (base / "__init__.py").is_file():
             files.add(base / "__init__.py")
-            files.update(f for f in base.rglob("*") if f.is_file() and f.suffix not in (".py", ".pyc"))
+            if package:
+                files.update(_data_files(base))
         elif base.with_suffix(".py").is_file():
             files.add(base.with_suffix(".py"))
     return sorted(str(f.relative_to(ROOT)) for f in files)
+
+
+def _data_files(folder: Path) -> list[Path]:
+    """The files of ``folder`` that are not Python, and those of its folders that are not packages
+    (a subpackage has its own; numba's caches in ``__pycache__`` are not code)."""
+    found = []
+    for f in folder.iterdir():
+        if f.is_file() and f.suffix != ".py":
+            found.append(f)
+        elif f.is_dir() and f.name != "__pycache__" and not (f / "__init__.py").is_file():
+            found.extend(_data_files(f))
+    return found
 
 
 def code_digest(paths: list[str], hashes: dict[str, bytes] | None = None) -> str:
