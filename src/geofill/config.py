@@ -792,6 +792,18 @@ class FusionConfig:
         "mean absolute difference, 0-255, over a 5-px box; score within ``candidate_ratio``) are averaged "
         "with it. 0: the winner alone.",
     )
+    misaligned_correlation: Annotated[float, Range(-1, 1)] = setting(
+        0.1,
+        "With several references, a reference is not used when its render, before refinement, correlates "
+        "with the photo on the known ring around the hole below this (median zero-mean normalised "
+        "cross-correlation over 11-px windows of the textured ring) while another reference's correlates "
+        "at least ``aligned_correlation``: its geometry does not line up with the scene (false matches on a "
+        "repeated texture, a view of the scene's other side). -1: off.",
+    )
+    aligned_correlation: Annotated[float, Range(-1, 1)] = setting(
+        0.4,
+        "The ring correlation the best reference needs before ``misaligned_correlation`` drops another.",
+    )
     parallel: Annotated[int, Range(1, 64), COSTLY] = setting(
         2,
         "References processed at once (threads); 1 runs them one after the other.",

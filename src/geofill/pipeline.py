@@ -40,6 +40,7 @@ from .errors import ArrayFormatError, ReferenceUnusable
 from .extras import install_hint
 from .focal import FocalEstimate, estimate_focal, shared_estimate, shared_focal_scale
 from .fuse import Fusion, fuse_references
+from .fuse.lineup import misaligned, ring_correlation
 from .intrinsics import ExifLens
 from .io import LoadedImage, as_rgb_uint8, as_source_mask, validate_pair
 from .joint import JointDatabase, agreeing, joint_focal, joint_pose, prior_conflict
@@ -98,6 +99,7 @@ DROPPED_WORDS: dict[str, str] = {
     "render": "it does not see what is behind the hole",
     "refine": "it does not see what is behind the hole",
     "screen": "it does not see what is behind the hole",
+    "line-up": "its view does not line up with the photo around the hole",
 }
 
 
@@ -588,7 +590,12 @@ def fill(
         raise ArrayFormatError(f"{len(masks)} source masks for {len(images)} sources")
     started = prog.wall_s()
     many = len(images) > 1  # at most one of each step across references ("shared focal", ...)
-    steps = many * (1 + (cfg.registration.joint == "auto") + cfg.multiview.depth)
+    steps = many * (
+        1
+        + (cfg.registration.joint == "auto")
+        + cfg.multiview.depth
+        + (cfg.fusion.misaligned_correlation > -1)
+    )
     prog.plan(1 + len(images) * len(REFERENCE_STAGES) + steps + 2)
     with prog.stage("check inputs"):
         ctx = prepare_fill(target, mask, images, cfg, target_exif, prog.say, prog.detail)
@@ -846,8 +853,38 @@ def run_all_references(
                 for r in refs
             )
             notes.append(f"located in {found} of {len(refs)} references")
+    if many and past("render") and cfg.fusion.misaligned_correlation > -1:
+        refs = _run_references(ctx, refs, prog, until="render")
+        with prog.stage("line-up") as notes:
+            refs, summary = lineup_step(ctx, refs, prog)
+            notes.append(summary)
     done = {r.index: r for r in _run_references(ctx, refs, prog, until=until)}
     return [done[i] for i in given], AcrossReferences(registration, multiview)
+
+
+def lineup_step(
+    ctx: FillContext, refs: list[ReferenceArtifacts], prog: Progress
+) -> tuple[list[ReferenceArtifacts], str]:
+    """The rendered references whose render does not line up with the photo around the hole while
+    another's does (:mod:`geofill.fuse.lineup`) dropped before refinement; and each one's ring
+    correlation."""
+    lineups = {
+        r.index: ring_correlation(r.render.render, r.source, ctx.target, ctx.hole)
+        for r in refs
+        if r.render is not None and not r.dropped
+    }
+    drop = misaligned(lineups, ctx.cfg.fusion)
+    after_render = len(REFERENCE_STAGES) - [s for s, _ in REFERENCE_STAGES].index("render") - 1
+    out = []
+    for r in refs:
+        if r.index in drop:
+            r = replace(r, dropped=drop[r.index], dropped_at="line-up")
+            prog.detail(f"reference {r.index} cannot help: {r.dropped}")
+            prog.say(f"{_label(r.index, r.name)} was not used: {r.dropped_words}")
+            prog.advance(after_render)  # the stages it will not run
+        out.append(r)
+    summary = ", ".join(f"reference {i} {lu.correlation:.2f}" for i, lu in sorted(lineups.items()))
+    return out, f"ring correlation {summary}" if lineups else "no render"
 
 
 def canonical_order(refs: Sequence[ReferenceArtifacts]) -> list[ReferenceArtifacts]:
