@@ -26,6 +26,7 @@ for _var in (
 
 REPO = Path(__file__).resolve().parents[1]
 PAIRS_DIR = REPO.parent / "shared" / "data" / "pairs"
+MULTIVIEW_DIR = REPO.parent / "shared" / "data" / "multiview"
 
 
 @pytest.fixture(scope="session")
@@ -33,6 +34,13 @@ def pairs_dir() -> Path:
     if not PAIRS_DIR.is_dir():
         pytest.skip(f"real pairs not available ({PAIRS_DIR} missing)")
     return PAIRS_DIR
+
+
+@pytest.fixture(scope="session")
+def multiview_dir() -> Path:
+    if not MULTIVIEW_DIR.is_dir():
+        pytest.skip(f"real multi-reference sets not available ({MULTIVIEW_DIR} missing)")
+    return MULTIVIEW_DIR
 
 
 #: Libraries the tests use beside the package's extras (they build tiny ONNX graphs).
