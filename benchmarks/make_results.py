@@ -16,6 +16,9 @@ before that was recorded, all of ``src/geofill`` and ``benchmarks/common.py``). 
 painter thus stales the sections that fill, not the renderer's or the stereo's own benchmarks.
 ``--stale`` lists the sections whose code changed since (their digest, or for a stamp without one
 the files changed since its revision), with what each took to generate; ``--only stale`` reruns them.
+``--alongside`` says under each section it runs that another benchmark ran on the machine at the same
+time (the 2-core machine then runs two single-threaded sections at once: its times include that
+contention, +13 % on one fill measured); concurrent ``--only`` runs update docs/results.md under a lock.
 ``--stamp-derived`` stamps sections that have no stamp with the commit that last changed their text
 in docs/results.md (``git blame``), marked as derived: what code produced them is not known.
 """
@@ -24,6 +27,7 @@ from __future__ import annotations
 
 import argparse
 import datetime
+import fcntl
 import hashlib
 import json
 import os
@@ -771,11 +775,14 @@ def stamp_derived() -> list[str]:
     return done
 
 
-def run_section(sec: Section, reuse: Path | None = None) -> tuple[str, list[str] | None]:
+def run_section(
+    sec: Section, reuse: Path | None = None, alongside: bool = False
+) -> tuple[str, list[str] | None]:
     """Run ``sec``'s command and format its result; with ``reuse``, a folder an earlier run of the
     same command wrote its results to, take them from there instead (for eval sections). Returns
     the section's text and the package and benchmark files its processes imported (None when
-    nothing was run or recorded: the section then depends on all of them)."""
+    nothing was run or recorded: the section then depends on all of them). ``alongside``: another
+    benchmark ran at the same time, which the section says under its times."""
     hashes = file_hashes([*CODE, "benchmarks", *_scripts(sec)])  # the code as the command starts
     with tempfile.TemporaryDirectory() as tmp, tempfile.TemporaryDirectory() as logs:
         cmd = [c.replace("{out}", tmp) for c in sec.command]
@@ -802,13 +809,16 @@ def run_section(sec: Section, reuse: Path | None = None) -> tuple[str, list[str]
         modules = {cmd[i + 1] for i, c in enumerate(cmd[:-1]) if c == "-m"}
         recorded = module_files(modules | set(log.read_text().split())) if log.is_file() else None
     stamp = new_stamp(sec, [*(recorded or CODE), *_scripts(sec)], hashes)
-    return format_section(sec, body, None if reuse is not None else took, stamp), recorded
+    text = format_section(sec, body, None if reuse is not None else took, stamp, alongside)
+    return text, recorded
 
 
-def format_section(sec: Section, body: str, took: float | None, stamp: str | None = None) -> str:
+def format_section(
+    sec: Section, body: str, took: float | None, stamp: str | None = None, alongside: bool = False
+) -> str:
     """The markdown of section ``sec`` whose command printed (or wrote) ``body`` in ``took`` s
     (None: taken from an earlier run of the command), stamped with ``stamp`` (:func:`new_stamp`;
-    by default the working tree's now)."""
+    by default the working tree's now); ``alongside``: another benchmark ran at the same time."""
     shown = " ".join(shlex.quote(c) for c in sec.command).replace(PY, ".venv/bin/python")
     shown = shown.replace(str(PAIRS), "../shared/data/pairs").replace("{out}", "OUT")
     shown = shown.replace(str(MULTIVIEW), "../shared/data/multiview")
@@ -817,6 +827,8 @@ def format_section(sec: Section, body: str, took: float | None, stamp: str | Non
     else:
         body = f"```\n{body.rstrip()}\n```"
     when = "results of an earlier run of this command" if took is None else f"took {took:.0f} s"
+    if alongside:
+        when += " alongside another benchmark on the other core (its times include that contention)"
     stamp = new_stamp(sec) if stamp is None else stamp
     when += f"; {stamp_words(parse_stamp(stamp))}"
     return f"<!-- section:{sec.name}{stamp} -->\n## {sec.title}\n\n{sec.about}\n\n```bash\n{shown}\n```\n\n" \
@@ -841,6 +853,10 @@ def main(argv: list[str] | None = None) -> int:
         "--stamp-derived", action="store_true",
         help="stamp unstamped sections with the commit that last changed their text (marked derived)",
     )  # fmt: skip
+    ap.add_argument(
+        "--alongside", action="store_true",
+        help="another benchmark runs at the same time: say so under each section's times",
+    )  # fmt: skip
     args = ap.parse_args(argv)
     if args.stamp_derived:
         print("\n".join(stamp_derived()))
@@ -861,7 +877,8 @@ def main(argv: list[str] | None = None) -> int:
     for sec in SECTIONS:
         if sec.name in wanted:
             print(f"running {sec.name} ...", file=sys.stderr, flush=True)
-            text, recorded = run_section(sec, Path(reuse[sec.name]) if sec.name in reuse else None)
+            reused = Path(reuse[sec.name]) if sec.name in reuse else None
+            text, recorded = run_section(sec, reused, args.alongside)
             write(sec.name, text, recorded)  # after each section: a long run keeps what it finished
     print(f"wrote {OUT}", file=sys.stderr)
     return 0
@@ -870,7 +887,13 @@ def main(argv: list[str] | None = None) -> int:
 def write(name: str, text: str, recorded: list[str] | None = None) -> None:
     """Replace section ``name`` of docs/results.md with ``text`` and its recorded dependencies in
     :data:`DEPS` with ``recorded``; every other section is kept as the files have it now (so
-    separate ``--only`` runs can update different sections)."""
+    separate ``--only`` runs, at the same time too, can update different sections)."""
+    with open(OUT.with_suffix(".lock"), "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
+        _write(name, text, recorded)
+
+
+def _write(name: str, text: str, recorded: list[str] | None) -> None:
     deps = json.loads(DEPS.read_text()) if DEPS.is_file() else {}
     deps.pop(name, None)
     if recorded:
