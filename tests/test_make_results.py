@@ -107,3 +107,28 @@ def test_a_section_depends_on_the_modules_its_processes_imported_and_goes_stale_
     assert mr.staleness(sec, stamp) == ""
     monkeypatch.setattr(mr, "file_hashes", changed("src/geofill/focal.py"))
     assert mr.staleness(sec, stamp).startswith("code changed since")
+
+
+def test_a_write_waits_for_another_runs_write_and_keeps_its_section(mr, tmp_path, monkeypatch):
+    import fcntl
+    import threading
+
+    monkeypatch.setattr(mr, "DEPS", tmp_path / "deps.json")
+    monkeypatch.setattr(mr, "OUT", tmp_path / "results.md")
+    render, speed = (next(s for s in mr.SECTIONS if s.name == n) for n in ("render", "speed"))
+    mr.write("render", mr.format_section(render, "render numbers", 1.0))
+    # Another `--only` run holds the lock while it rewrites the file: this run's write waits.
+    with open(mr.OUT.with_suffix(".lock"), "w") as held:
+        fcntl.flock(held, fcntl.LOCK_EX)
+        writer = threading.Thread(
+            target=mr.write, args=("speed", mr.format_section(speed, "speed numbers", 2.0, alongside=True))
+        )
+        writer.start()
+        writer.join(0.5)
+        assert writer.is_alive()
+        mr.OUT.write_text(mr.OUT.read_text().replace("render numbers", "render numbers, rerun"))
+    writer.join(10)
+    found = mr.sections_in(mr.OUT.read_text())
+    assert "render numbers, rerun" in found["render"][1] and "speed numbers" in found["speed"][1]
+    assert "took 2 s alongside another benchmark" in found["speed"][1]
+    assert "alongside" not in found["render"][1]
