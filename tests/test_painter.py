@@ -173,12 +173,18 @@ _BOUNDED_SCRIPT = """
 import resource, sys
 import numpy as np
 from geofill.composite.exemplar import complete
+from geofill.composite.rectify import paint
 
-h, w, budget = (int(a) for a in sys.argv[1:])
+h, w, budget = (int(a) for a in sys.argv[1:4])
 tile = np.random.default_rng(0).integers(0, 256, (16, 16, 3), dtype=np.uint8).repeat(4, 0).repeat(4, 1)
 img = np.tile(tile, (h // 64 + 1, w // 64 + 1, 1))[:h, :w].copy()
+if sys.argv[4] == "painter":  # the default painter: a wall on a floor, their edge drawn across first
+    img = np.where(np.arange(h)[:, None, None] < h // 2, (200, 170, 90), (90, 90, 100))
+    img = np.clip(img + np.random.default_rng(0).normal(0, 3, (h, w, 3)), 0, 255).astype(np.uint8)
+    complete = lambda image, hole: paint(image, hole, None, None)
 hole = np.zeros((h, w), bool)
-hole[h // 16 : h - h // 16, w // 16 : w - w // 16] = True
+m = 3 if sys.argv[4] == "painter" else 16  # the edge must run into the hole from the known image
+hole[h // m : h - h // m, w // m : w - w // m] = True
 warm = np.zeros((300, 300), bool)
 warm[20:280, 20:280] = True
 complete(img[:300, :300].copy(), warm)  # compiled, its threads and their arenas made
@@ -193,16 +199,19 @@ print(f"{grey.std():.1f}")
 
 
 @pytest.mark.skipif(not os.path.exists("/proc/self/status"), reason="reads VmSize from /proc")
-def test_memory_is_bounded_by_the_searched_levels_not_the_image(tmp_path):
-    """A 16.7 MP image with an 88 % hole is painted in 32 bytes of address space per pixel beyond
-    what the process already holds: the levels above the 1400-px search are never held whole (the
-    old painter needed 145 bytes per pixel and ran out: its float copy of the image alone is 12)."""
+@pytest.mark.parametrize("painter, h, w, budget", [("complete", 2048, 8192, 32), ("painter", 4096, 4096, 24)])
+def test_memory_is_bounded_by_the_searched_levels_not_the_image(tmp_path, painter, h, w, budget):
+    """A 16.7 MP image is painted in ``budget`` bytes of address space per pixel beyond what the
+    process already holds: the levels above the 1400-px search are never held whole (the old
+    completion needed 145 bytes per pixel and ran out: its float copy of the image alone is 12),
+    and the default painter finds the surfaces of a wall on a floor, whose edge it draws across
+    the hole first, at that size too (it took a float copy of the whole image and found them at
+    full size: 48 bytes per pixel were not enough)."""
     script = tmp_path / "bounded.py"
     script.write_text(_BOUNDED_SCRIPT)
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
-    done = subprocess.run(
-        [sys.executable, str(script), "2048", "8192", "32"], capture_output=True, text=True, env=env
-    )
+    args = [str(h), str(w), str(budget), painter]
+    done = subprocess.run([sys.executable, str(script), *args], capture_output=True, text=True, env=env)
     assert done.returncode == 0, done.stderr[-2000:]
     assert float(done.stdout) > 20  # a texture was copied in, not a flat colour
 

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from .surfaces import extend, segment
+from .surfaces import extend, reduced, segment
 
 #: A point lies on a plane when its distance to it is at most this share of its depth (render and
 #: stereo depth are relative: their error grows with the distance).
@@ -34,8 +34,6 @@ _FIT_POINTS = 4000
 _TRIALS = 300
 #: Ring pixels this close (px) to two planes' meeting line show where they meet.
 _MEET_PX = 3.0
-#: Longest side (px) the surfaces are found at.
-_LONG_SIDE = 1400
 #: A ray grazing a plane (cosine to its normal below this) is never put on it: the plane would be
 #: stretched without bound there.
 _MIN_COS = 0.05
@@ -85,23 +83,21 @@ def rays(K: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
 def plane_surfaces(
     image: np.ndarray, hole: np.ndarray, scene: SceneDepth, patch_px: int
 ) -> PlaneSurfaces | None:
-    """The surfaces of ``image`` (HxWx3 float32 RGB in [0, 1]) around ``hole`` (HxW bool) from
-    ``scene``'s depth, or None when no plane is found on the ring (then the appearance surfaces
-    stand alone). ``patch_px``: the painter's patch width. Above _LONG_SIDE px the surfaces are
-    found on the image reduced to that and scaled back (per-pixel rays and distances to every
-    plane cost a gigabyte at 4K)."""
-    f = max(1, -(-max(hole.shape) // _LONG_SIDE))
+    """The surfaces of ``image`` (HxWx3 RGB, uint8 or float32 in [0, 1]) around ``hole`` (HxW bool)
+    from ``scene``'s depth, or None when no plane is found on the ring (then the appearance surfaces
+    stand alone). ``patch_px``: the painter's patch width. Above
+    :data:`geofill.composite.surfaces.LONG_SIDE` px the surfaces are found on the image reduced to
+    that and scaled back (per-pixel rays and distances to every plane cost a gigabyte at 4K)."""
+    f, small_image, small_hole = reduced(image, hole)
     if f == 1:
-        return _plane_surfaces(image, hole, scene, patch_px)
+        return _plane_surfaces(small_image, hole, scene, patch_px)
     h, w = hole.shape
-    size = (-(-w // f), -(-h // f))
-    small_hole = cv2.resize(hole.astype(np.uint8), size, interpolation=cv2.INTER_AREA) > 0
     K = np.diag([1.0 / f, 1.0 / f, 1.0]) @ scene.K
     K[:2, 2] += 0.5 / f - 0.5  # pixel centres: x_small = (x + 0.5) / f - 0.5
     small = _plane_surfaces(
-        cv2.resize(image, size, interpolation=cv2.INTER_AREA),
+        small_image,
         small_hole,
-        SceneDepth(cv2.resize(scene.depth, size, interpolation=cv2.INTER_NEAREST), K),
+        SceneDepth(cv2.resize(scene.depth, small_hole.shape[::-1], interpolation=cv2.INTER_NEAREST), K),
         max(3, patch_px // f),
     )
     if small is None:

@@ -51,10 +51,10 @@ def paint(
     # structure diffused around them does not take their colour (a dark edge cast a dark shadow).
     image = image.copy()
     drawn = continue_lines(image, hole, side)
-    colour = image.astype(np.float32) / 255.0
-    surfaces = None if scene is None else plane_surfaces(colour, hole, scene, side)
+    # The surfaces take the uint8 image: at 58 MP a float copy of it alone is 0.7 GB.
+    surfaces = None if scene is None else plane_surfaces(image, hole, scene, side)
     if surfaces is None:
-        labels = segment(colour, hole, side) if drawn.any() else None
+        labels = segment(image, hole, side) if drawn.any() else None
         if labels is not None:
             labels[drawn] = labels.max() + 1
         return complete(image, hole & ~drawn, s, surfaces=labels)

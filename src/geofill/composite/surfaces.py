@@ -36,12 +36,47 @@ _LINE_PX = 2.0
 #: Lines tried (through two boundary pixels each) in the search for the dominant one.
 _LINE_TRIALS = 200
 _LINE_POINTS = 4000
+#: Longest side (px) the surfaces are found at: a larger image is reduced to it and the labels
+#: scaled back (per-pixel features and distances to each cluster cost gigabytes at 58 MP). The
+#: painter searches at most this long a level, so it never sees finer labels.
+LONG_SIDE = 1400
+
+
+def unit(image: np.ndarray) -> np.ndarray:
+    """``image`` as float32 in [0, 1]: an HxWx3 uint8 image converted (one float copy, not the two
+    ``image / 255.0`` makes), a float one returned as it is."""
+    if image.dtype != np.uint8:
+        return image
+    out = image.astype(np.float32)
+    out /= 255.0
+    return out
+
+
+def reduced(image: np.ndarray, hole: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
+    """``image`` (HxWx3, uint8 or float32 in [0, 1]) and ``hole`` reduced (area averaging; a pixel
+    touching the hole is in it) by the least integer factor that makes them at most
+    :data:`LONG_SIDE` long: the factor, the image as float32 in [0, 1], the hole."""
+    f = max(1, -(-max(hole.shape) // LONG_SIDE))
+    if f == 1:
+        return 1, unit(image), hole
+    size = (-(-hole.shape[1] // f), -(-hole.shape[0] // f))
+    small_hole = cv2.resize(hole.astype(np.uint8), size, interpolation=cv2.INTER_AREA) > 0
+    return f, unit(cv2.resize(image, size, interpolation=cv2.INTER_AREA)), small_hole
 
 
 def segment(image: np.ndarray, hole: np.ndarray, patch_px: int) -> np.ndarray:
     """Surface labels (HxW int32, 0..k-1) of every pixel, known or in the hole, of ``image``
-    (HxWx3 float32 RGB in [0, 1]) around ``hole`` (HxW bool); all 0 when the known pixels form one
-    surface. ``patch_px``: the painter's patch width, the scale the appearance is averaged over."""
+    (HxWx3 RGB, uint8 or float32 in [0, 1]) around ``hole`` (HxW bool); all 0 when the known pixels
+    form one surface. ``patch_px``: the painter's patch width, the scale the appearance is averaged
+    over. Above :data:`LONG_SIDE` px found on the image reduced to that and scaled back."""
+    f, small, small_hole = reduced(image, hole)
+    if f == 1:
+        return _segment(small, hole, patch_px)
+    labels = _segment(small, small_hole, max(3, patch_px // f))
+    return cv2.resize(labels, hole.shape[::-1], interpolation=cv2.INTER_NEAREST)
+
+
+def _segment(image: np.ndarray, hole: np.ndarray, patch_px: int) -> np.ndarray:
     known = ~hole
     feats = _appearance(image, known, 2.0 * patch_px)
     labels = np.zeros(hole.shape, np.int32)
