@@ -70,9 +70,9 @@ class RenderResult:
         out[self.window()] = self.sample_window(source)
         return out
 
-    def sample_window(self, source: np.ndarray) -> np.ndarray:
-        """:meth:`sample` on :meth:`window` only."""
-        rows, cols = self.window()
+    def sample_window(self, source: np.ndarray, window: tuple[slice, slice] | None = None) -> np.ndarray:
+        """:meth:`sample` on ``window`` (rows, columns) only; by default :meth:`window`."""
+        rows, cols = self.window() if window is None else window
         win = cv2.remap(
             source, self.map_x[rows, cols], self.map_y[rows, cols], cv2.INTER_LINEAR,
             borderMode=cv2.BORDER_REPLICATE,

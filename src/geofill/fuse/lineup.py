@@ -69,11 +69,8 @@ def ring_correlation(
     ring = known_ring(hole[rows, cols], ring_w) & inside
     if not ring.any():
         return LineUp(float("nan"), 0)
-    drawn = cv2.remap(
-        source, render.map_x[rows, cols], render.map_y[rows, cols], cv2.INTER_LINEAR,
-        borderMode=cv2.BORDER_REPLICATE,
-    )  # fmt: skip
-    a = cv2.cvtColor(drawn, cv2.COLOR_RGB2GRAY).astype(np.float32)
+    # Zero where the render is empty: no box centred on the eroded ring reaches there.
+    a = cv2.cvtColor(render.sample_window(source, (rows, cols)), cv2.COLOR_RGB2GRAY).astype(np.float32)
     b = cv2.cvtColor(target[rows, cols], cv2.COLOR_RGB2GRAY).astype(np.float32)
     box = (window, window)
     mean_a, mean_b = cv2.blur(a, box), cv2.blur(b, box)
