@@ -16,7 +16,7 @@ before that was recorded, all of ``src/geofill`` and ``benchmarks/common.py``). 
 painter thus stales the sections that fill, not the renderer's or the stereo's own benchmarks.
 ``--stale`` lists the sections whose code changed since (their digest, or for a stamp without one
 the files changed since its revision), with what each took to generate; ``--only stale`` reruns them.
-``--alongside`` says under each section it runs that another benchmark ran on the machine at the same
+``--alongside`` says under each section it runs that other work ran on the machine at the same
 time (the 2-core machine then runs two single-threaded sections at once: its times include that
 contention, +13 % on one fill measured); concurrent ``--only`` runs update docs/results.md under a lock.
 ``--stamp-derived`` stamps sections that have no stamp with the commit that last changed their text
@@ -828,7 +828,8 @@ def format_section(
         body = f"```\n{body.rstrip()}\n```"
     when = "results of an earlier run of this command" if took is None else f"took {took:.0f} s"
     if alongside:
-        when += " alongside another benchmark on the other core (its times include that contention)"
+        when += " alongside other benchmarks or tests on this 2-core machine (its times include that"
+        when += " contention)"
     stamp = new_stamp(sec) if stamp is None else stamp
     when += f"; {stamp_words(parse_stamp(stamp))}"
     return f"<!-- section:{sec.name}{stamp} -->\n## {sec.title}\n\n{sec.about}\n\n```bash\n{shown}\n```\n\n" \
