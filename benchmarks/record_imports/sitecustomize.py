@@ -25,7 +25,7 @@ if _LOG:
 
 # This file shadows the environment's own sitecustomize (Debian's Python ships one): run that too.
 sys.path[:] = [p for p in sys.path if os.path.abspath(p or ".") != _HERE]
-sys.modules.pop("sitecustomize", None)  # absent where a worker runs this file by path
+sys.modules.pop("sitecustomize", None)
 try:
     import sitecustomize  # noqa: F401
 except ImportError:
