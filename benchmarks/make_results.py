@@ -15,7 +15,8 @@ in ``benchmarks/results_deps.json``, and the scripts its command names; for a se
 before that was recorded, all of ``src/geofill`` and ``benchmarks/common.py``). A change to the
 painter thus stales the sections that fill, not the renderer's or the stereo's own benchmarks.
 ``--stale`` lists the sections whose code changed since (their digest, or for a stamp without one
-the files changed since its revision), with what each took to generate; ``--only stale`` reruns them.
+the files changed since its revision) and those whose last run failed, with what each took to
+generate; ``--only stale`` reruns them.
 ``--alongside`` says under each section it runs that other work ran on the machine at the same
 time (the 2-core machine then runs two single-threaded sections at once: its times include that
 contention, +13 % on one fill measured); concurrent ``--only`` runs update docs/results.md under a lock.
@@ -690,13 +691,30 @@ def sections_in(text: str) -> dict[str, tuple[dict[str, str], str]]:
     return out
 
 
-def stale_report() -> list[str]:
-    """One line per section whose numbers predate the code they depend on, with their cost."""
-    found = sections_in(OUT.read_text() if OUT.exists() else "")
+def outdated(sec: Section, stamp: dict[str, str], text: str) -> str:
+    """Why section ``sec`` (its ``stamp`` and whole ``text``) needs a rerun: its code changed, it
+    was never run, or its last run failed, which leaves no numbers however new the code ("" when
+    none of these)."""
+    if not text:
+        return "not run yet"
+    why = staleness(sec, stamp)
+    if not why and FAILED_BODY.search(text):
+        return f"its last run failed ({stamp_words(stamp)})"
+    return why
+
+
+#: How :func:`run_section` writes a failed command's body.
+FAILED_BODY = re.compile(r"^FAILED \(exit -?\d+\):$", re.M)
+
+
+def stale_report(path: Path = OUT) -> list[str]:
+    """One line per section whose numbers predate the code they depend on, or which has no numbers
+    (never run, or failed), with its cost."""
+    found = sections_in(path.read_text() if path.exists() else "")
     lines = []
     for sec in SECTIONS:
         stamp, text = found.get(sec.name, ({}, ""))
-        why = staleness(sec, stamp) if text else "not run yet"
+        why = outdated(sec, stamp, text)
         if why:
             took = re.search(r"_\(took (\d+) s", text)
             cost = f"took {took.group(1)} s" if took else "cost unknown"
@@ -725,7 +743,7 @@ def mark_stale(path: Path = OUT) -> list[str]:
         stamp, body = sections_in(text).get(sec.name, ({}, ""))
         if not body:
             continue
-        why = staleness(sec, stamp)
+        why = outdated(sec, stamp, body)
         head, rest = body.split("\n\n", 1)  # the marker and the heading, then the rest
         rest = STALE_NOTE.sub("", rest, count=1)
         if why:

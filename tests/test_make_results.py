@@ -75,6 +75,20 @@ def test_a_stale_section_says_so_under_its_heading_and_a_fresh_one_does_not(mr, 
     assert mr.mark_stale(doc) == [] and "Stale" not in doc.read_text()
 
 
+def test_a_section_whose_last_run_failed_is_listed_for_a_rerun_though_its_code_is_current(mr, tmp_path):
+    sec = next(s for s in mr.SECTIONS if s.name == "batch")
+    doc = tmp_path / "results.md"
+    doc.write_text("# Results\n\n" + mr.format_section(sec, "| mode | 1 |", 3.0))
+    assert not [line for line in mr.stale_report(doc) if line.startswith("batch:")]
+    failed = mr.format_section(sec, "FAILED (exit 1):\nTraceback ...\nAssertionError", 3.0)
+    doc.write_text("# Results\n\n" + failed)
+    stamp = mr.sections_in(failed)["batch"][0]
+    assert mr.staleness(sec, stamp) == ""  # the code is current ...
+    (line,) = [line for line in mr.stale_report(doc) if line.startswith("batch:")]
+    assert line.startswith("batch: its last run failed (generated at")  # ... yet it has no numbers
+    assert mr.mark_stale(doc) == ["batch"] and "> **Stale:** its last run failed" in doc.read_text()
+
+
 def test_a_section_depends_on_the_modules_its_processes_imported_and_goes_stale_only_with_them(
     mr, tmp_path, monkeypatch
 ):

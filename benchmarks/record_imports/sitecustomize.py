@@ -25,8 +25,11 @@ if _LOG:
 
 # This file shadows the environment's own sitecustomize (Debian's Python ships one): run that too.
 sys.path[:] = [p for p in sys.path if os.path.abspath(p or ".") != _HERE]
-sys.modules.pop("sitecustomize", None)
+_self = sys.modules.pop("sitecustomize", None)
 try:
     import sitecustomize  # noqa: F401
 except ImportError:
-    pass
+    # No other sitecustomize: put this one back, or the import statement that is running this file
+    # finds no module under its name when it returns (KeyError: 'sitecustomize').
+    if _self is not None:
+        sys.modules["sitecustomize"] = _self

@@ -31,6 +31,7 @@ import numpy as np
 
 from geofill.batch import BatchSettings, items_from_folders, run_batch
 from geofill.config import FillConfig
+from geofill.errors import EXIT_ITEMS_FAILED
 from geofill.evaluation.pairs import load_pair, pair_mask
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root: benchmarks.common
@@ -122,7 +123,10 @@ def overhead(tmp: Path, n: int, settings: dict) -> float:
         batch_settings = BatchSettings(out_dir=root / "out", quiet=True, **settings)
         with contextlib.redirect_stdout(io.StringIO()):
             outcome = run_batch(items, FillConfig(), batch_settings, stream=io.StringIO())
-        assert outcome.exit_code == 6 and len(outcome.records) == count, "every item should fail (exit 6)"
+        assert outcome.exit_code == EXIT_ITEMS_FAILED and len(outcome.records) == count, (
+            f"every item should fail (exit {EXIT_ITEMS_FAILED}): exit {outcome.exit_code}, "
+            f"{len(outcome.records)} of {count} records"
+        )
         walls.append(outcome.elapsed_s)
     return (walls[1] - walls[0]) / (4 * n)
 
