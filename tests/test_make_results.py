@@ -75,6 +75,19 @@ def test_a_stale_section_says_so_under_its_heading_and_a_fresh_one_does_not(mr, 
     assert mr.mark_stale(doc) == [] and "Stale" not in doc.read_text()
 
 
+def test_docstrings_comments_and_layout_do_not_stale_a_section_and_code_does(mr, tmp_path):
+    a, b, c, d = (tmp_path / f"{n}.py" for n in "abcd")
+    a.write_text('"""Old words."""\n\n\ndef f(x):\n    """Twice x."""\n    return 2 * x  # why\n')
+    b.write_text('"""New words: 0.02 dB."""\n\n\ndef f(x):\n    return 2 * x\n')
+    c.write_text('"""Old words."""\n\n\ndef f(x):\n    """Twice x."""\n    return 3 * x\n')
+    d.write_text("def f(x):\n    '''Only a docstring.'''\n")
+    assert mr.code_of(a) == mr.code_of(b) != mr.code_of(c)
+    assert b"Pass" in mr.code_of(d)  # a body that was only its docstring still has a body
+    data = tmp_path / "page.html"
+    data.write_text("<p>1</p>")
+    assert mr.code_of(data) == b"<p>1</p>"  # any other file: its bytes
+
+
 def test_a_section_whose_last_run_failed_is_listed_for_a_rerun_though_its_code_is_current(mr, tmp_path):
     sec = next(s for s in mr.SECTIONS if s.name == "batch")
     doc = tmp_path / "results.md"

@@ -8,17 +8,15 @@ through ONNX Runtime (:mod:`geofill.composite.lama`), whose model is resolved li
 -> hub download only when ``inpaint.download`` is on and ``HF_HUB_OFFLINE`` unset); ``auto`` (default):
 LaMa when its model resolves, else ``exemplar``, and the report says which and why.
 
-``exemplar`` replaced Telea as the weight-free default. Telea diffuses colour from the border: it wins
-hole PSNR because PSNR rewards blur, and leaves a streaky smear (its hole has a quarter of the gradient
-energy of the known ring around it; the truth's ratio is 1.0). On the whole-hole fallback of 8 DEV pairs
-(``benchmarks/quality/painter.py``) the exemplar painter, filling each surface around the hole from
-itself over a structure that keeps each surface's colour step, keeps a gradient ratio of 0.75 at
-0.04 dB of hole PSNR above Telea (15.39 vs 15.35 dB; a membrane per surface: 0.77 at -0.29 dB);
-inside reference fills (``geofill eval --limit 8``) its mean hole PSNR is 0.11 dB above Telea's
-(19.46 vs 19.35 dB). It costs 2-5x Telea's time (docs/architecture.md). PatchMatch
-(PyPatchMatch) was the earlier alternative: 2.2 dB below Telea on the same cases at 3x the
-exemplar painter's time, and on large holes it copies whole structures into the wrong place (a
-second fox head, a second sign); Telea stays as the ``telea`` preset.
+``exemplar`` replaced Telea as the weight-free default. Telea diffuses colour from the border: it scores
+well on hole PSNR because PSNR rewards blur, and leaves a streaky smear (its hole has a quarter of the
+gradient energy of the known ring around it; the truth's ratio is 1.0). The exemplar painter fills each
+surface around the hole from itself over a structure that keeps each surface's colour step: about Telea's
+hole PSNR with three times its gradient energy, at a few times its time at 720p and faster at 4K.
+PatchMatch (PyPatchMatch) was the earlier alternative: about 2 dB below Telea at several times the
+exemplar painter's time, and on large holes it copies whole structures into the wrong place (a second
+fox head, a second sign); Telea stays as the ``telea`` preset. The figures: the ``painter``,
+``painter_surfaces``, ``painter_fills`` and ``painter_static`` sections of docs/results.md.
 """
 
 from __future__ import annotations
