@@ -35,7 +35,7 @@ from ..utils.distance import known_ring
 from ..utils.resolution import config_px, odd_px
 from .appearance import locate_by_appearance
 from .depth import DepthLocation, locate_by_depth, locate_together
-from .strangers import strangers, watershed_region
+from .strangers import stranger_region, strangers, watershed_region
 from .surface import like_the_object, locate_on_surface
 
 __all__ = [
@@ -157,7 +157,7 @@ def screen_render(
         refused_stranger = np.zeros(hole.shape, bool)
         # The source's own colours at the field: the refine stage's local colour gain is fitted on the
         # ring, so it would fade a stranger exactly where this test looks for it.
-        refused_stranger[rows, cols] = strangers(
+        refused_stranger[rows, cols] = stranger_region(
             field.sample_window(source),
             target[rows, cols],
             hole[rows, cols],

@@ -16,6 +16,9 @@ from ..utils.resolution import config_px, odd_px
 #: Long side (px) at which the stranger test runs: it finds regions tens of pixels wide, and at full
 #: resolution its watershed and statistics cost a tenth of a 1280-px fill.
 STRANGER_TEST_SIDE = 640
+#: Long side (px) at which a stranger's unexplained continuation is found: a k-d tree query per
+#: hole patch, and a passer-by's clothes need no finer detail.
+NOVELTY_TEST_SIDE = 320
 
 
 def strangers(
@@ -62,6 +65,69 @@ def strangers(
     return (cv2.resize(found.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) > 0) & alpha & hole
 
 
+def stranger_region(
+    render: np.ndarray,
+    target: np.ndarray,
+    hole: np.ndarray,
+    alpha: np.ndarray,
+    shape: tuple[int, ...],
+    sc: ScreenConfig,
+) -> np.ndarray:
+    """:func:`strangers` grown by :func:`continuation` where ``sc.stranger_unexplained``."""
+    found = strangers(render, target, hole, alpha, shape, sc)
+    if sc.stranger_unexplained and found.any():
+        found |= continuation(render, target, hole, alpha, found, shape, sc)
+    return found
+
+
+def continuation(
+    render: np.ndarray,
+    target: np.ndarray,
+    hole: np.ndarray,
+    alpha: np.ndarray,
+    found: np.ndarray,
+    shape: tuple[int, ...],
+    sc: ScreenConfig,
+) -> np.ndarray:
+    """The hole pixels of a window (covered by ``alpha``) where ``render`` shows content that the
+    ring around the hole does not explain (:func:`~geofill.screen.surface.unexplained`, against the
+    ring pixels where the render agrees with ``target``) and that is connected to ``found`` (the
+    strangers :func:`strangers` refused): the rest of a passer-by whose white shirt the watershed
+    took for the pale steps around it. Run with the long side at most :data:`NOVELTY_TEST_SIDE`.
+
+    >>> hole = np.zeros((40, 60), bool); hole[10:30, 20:40] = True
+    >>> target = np.full((40, 60, 3), 120, np.uint8); target[hole] = 0
+    >>> render = target.copy(); render[hole] = 120; render[12:28, 30:34] = 20; render[20:24, 22:26] = 230
+    >>> found = np.zeros_like(hole); found[12:14, 30:34] = True  # the top of a stranger
+    >>> out = continuation(render, target, hole, np.ones_like(hole), found, (720, 1280), ScreenConfig())
+    >>> bool(out[14:26, 30:34].all()), bool(out[20:24, 22:26].any())  # his legs; not another thing
+    (True, False)
+    """
+    from .surface import unexplained
+
+    h, w = hole.shape
+    f = min(1.0, NOVELTY_TEST_SIDE / max(h, w))
+    size = (max(round(w * f), 1), max(round(h * f), 1))
+
+    def small(mask: np.ndarray) -> np.ndarray:
+        return cv2.resize(mask.astype(np.uint8), size, interpolation=cv2.INTER_NEAREST) > 0
+
+    r = cv2.resize(render, size, interpolation=cv2.INTER_AREA)
+    t = cv2.resize(target, size, interpolation=cv2.INTER_AREA)
+    s_hole, s_alpha, s_found = small(hole), small(alpha), small(found)
+    px = config_px(1.0, shape) * f
+    ring = s_alpha & known_ring(s_hole, sc.stranger_ring_px * px)
+    if not ring.any():
+        return np.zeros(hole.shape, bool)
+    level = t.astype(np.float32) + np.median(r[ring].astype(np.float32) - t[ring], axis=0)
+    agree = ring & (cv2.blur(np.abs(r - level).mean(axis=2), (3, 3)) < sc.stranger_agreement)
+    novel = unexplained(r, s_hole & s_alpha, agree)
+    _, labels = cv2.connectedComponents(novel.astype(np.uint8), connectivity=8)
+    touched = np.unique(labels[cv2.dilate(s_found.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0])
+    grown = np.isin(labels, touched[touched > 0])
+    return (cv2.resize(grown.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) > 0) & alpha & hole
+
+
 def _strangers(
     render: np.ndarray, target: np.ndarray, hole: np.ndarray, alpha: np.ndarray, px: float, sc: ScreenConfig
 ) -> np.ndarray:
@@ -75,11 +141,13 @@ def _strangers(
     raw = np.abs(render - level).mean(axis=2)
     diff = cv2.blur(raw, (k, k))
     # Both the box mean and the pixel itself: the mean alone spreads a stranger's edge outwards. A
-    # render that is only misaligned (depth off at an occlusion edge) agrees once shifted a little;
-    # a stranger does not.
+    # render that is only misaligned (depth off at an occlusion edge) shows what the target shows a
+    # little further on; a stranger shows what the target shows nowhere near. So the target is
+    # shifted, not the render: shifting the render moved a stranger narrower than the reach (a
+    # passer-by a few pixels wide in a far crowd) off the pixel, and the ground beside him agreed.
     reach = 12.0 * px
     seeds = ring & (diff > sc.stranger_threshold) & (raw > sc.stranger_threshold)
-    seeds &= shifted_min_diff(render, level, k, reach) > sc.stranger_shift_threshold
+    seeds &= shifted_min_diff(level, render, k, reach) > sc.stranger_shift_threshold
     # An opening removes the thin lines that misalignment leaves along edges.
     m = max(3, odd_px(sc.stranger_min_px / 2 * px))
     seeds = cv2.morphologyEx(seeds.astype(np.uint8), cv2.MORPH_OPEN, np.ones((m, m), np.uint8))
@@ -106,16 +174,17 @@ def _strangers(
     return (markers == 1) & alpha & hole
 
 
-def shifted_min_diff(render: np.ndarray, target: np.ndarray, k: int, reach_px: float) -> np.ndarray:
-    """Per pixel, the smallest box mean (side ``k``) of the absolute difference between ``target``
-    (float32) and ``render`` shifted by up to ``reach_px`` in each direction (7 x 7 shifts at most).
-    Computed with the long side at most 256 px: telling misalignment from other content needs no
-    fine detail, and 49 passes at 640 px would cost more than the rest of the screen stage."""
-    h, w = render.shape[:2]
+def shifted_min_diff(moved: np.ndarray, fixed: np.ndarray, k: int, reach_px: float) -> np.ndarray:
+    """Per pixel, the smallest box mean (side ``k``) of the absolute difference between ``fixed``
+    and ``moved`` shifted by up to ``reach_px`` in each direction (7 x 7 shifts at most): small
+    where what ``fixed`` shows around a pixel, ``moved`` shows within reach of it. Computed with the
+    long side at most 256 px: telling misalignment from other content needs no fine detail, and 49
+    passes at 640 px would cost more than the rest of the screen stage."""
+    h, w = moved.shape[:2]
     f = min(1.0, 256 / max(h, w))
     size = (max(round(w * f), 1), max(round(h * f), 1))
-    r_img = cv2.resize(render, size, interpolation=cv2.INTER_AREA).astype(np.float32)
-    t_img = cv2.resize(target, size, interpolation=cv2.INTER_AREA)
+    r_img = cv2.resize(moved, size, interpolation=cv2.INTER_AREA).astype(np.float32)
+    t_img = cv2.resize(fixed, size, interpolation=cv2.INTER_AREA)
     ks = odd_px(k * f)
     r = max(1, round(reach_px * f))
     step = max(1, round(r / 3))
