@@ -4,6 +4,8 @@ copied into it; a hole that shows nothing, in a reference that shows the scene, 
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -88,7 +90,9 @@ def test_a_stranger_reaching_beyond_the_hole_is_not_copied(pair, plain):
     assert red(off.image).sum() > 0.3 * lands.sum()  # without the test it is pasted in
     on = fill(target, pair.hole, source)
     refused = on.references[0].screened.refused_stranger
-    assert (refused & lands).sum() > 0.7 * lands.sum() and (refused & ~lands).sum() < 0.15 * lands.sum()
+    # Beside the disc: 238 px refused by the watershed alone; the unexplained background the render
+    # shows next to it (screen.stranger_unexplained) adds 315 (7 % of the covered hole off the disc).
+    assert (refused & lands).sum() > 0.7 * lands.sum() and (refused & ~lands).sum() < 0.25 * lands.sum()
     assert red(on.image).sum() < 0.15 * red(off.image).sum()
     assert on.report.refused_fraction["stranger"] == pytest.approx(refused.sum() / pair.hole.sum())
     assert "your photo does not show around it" in on.report.refused_words()
@@ -168,3 +172,50 @@ def test_a_textured_stranger_inside_the_hole_is_outvoted_once_the_shift_cannot_e
     assert not found[:2].any()
     # The default (45) lets the shifted difference of 30 pass.
     assert not cross_strangers(images, alphas, _HOLE, target, none, (720, 1280), FillConfig().screen).any()
+
+
+def test_a_stranger_narrower_than_the_shift_reach_is_refused():
+    """A passer-by 6 px wide reaching above the hole, on a plain wall: shifted 6 px, the render shows
+    the wall beside him and agrees with the target there, so shifting the render explained him away
+    as misalignment. The target shifted shows him nowhere near: he is other content."""
+    from geofill.screen import strangers
+
+    wall = np.full((_H, _W, 3), 180, np.uint8)
+    target = wall.copy()
+    target[_HOLE] = 0
+    render = wall.copy()
+    there = np.zeros((_H, _W), bool)
+    there[10:80, 97:103] = True  # above the hole down into it
+    render[there] = 30
+    found = strangers(render, target, _HOLE, np.ones((_H, _W), bool), (720, 1280), FillConfig().screen)
+    assert found[there & _HOLE].mean() > 0.8  # (none of him before)
+    assert found[~there & _HOLE].sum() < there[_HOLE].sum()  # the watershed's seam around him
+
+
+def test_the_passers_by_of_berlins_reference_do_not_come_back(pairs_dir):
+    """The panel's Berlin case, brushed with a plain 20-px margin: the reference, taken moments
+    later, shows three passers-by where the third brushed person stood. They reach above that hole;
+    the refusal grown from there by the watershed stopped at their pale shirts and the dark legs
+    below them were pasted in (7.9 % of that hole darker than all but 2 % of its ring)."""
+    import json
+
+    import cv2
+
+    from geofill.evaluation.pairs import load_pair
+
+    pair = load_pair(pairs_dir / "dev_opensfm_berlin_01_02")
+    cases = json.loads((Path(__file__).resolve().parents[1] / "benchmarks/panel/cases.json").read_text())
+    people = next(c for c in cases["cases"] if c["name"] == "berlin_people")["object"]
+    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (41, 41))
+    holes = []
+    for poly in people:
+        one = np.zeros(pair.target.shape[:2], np.uint8)
+        cv2.fillPoly(one, [np.array(poly, np.int32)], 255)
+        holes.append(cv2.dilate(one, disc) > 0)
+    hole = np.any(holes, axis=0)
+    out = fill(pair.target, hole, pair.source).image
+    grey = cv2.cvtColor(out, cv2.COLOR_RGB2GRAY)
+    third = holes[2]
+    ring = (cv2.dilate(third.astype(np.uint8), np.ones((31, 31), np.uint8)) > 0) & ~hole
+    dark = np.percentile(cv2.cvtColor(pair.target, cv2.COLOR_RGB2GRAY)[ring], 2)
+    assert (grey[third] < dark).mean() < 0.01

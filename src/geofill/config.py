@@ -1003,15 +1003,18 @@ class ScreenConfig:
     stranger_shift_threshold: Annotated[float, Range(0, 255)] = setting(
         20.0,
         "A region that differs from the target around the hole (or, between references, from another "
-        "render) counts as other content only where it still differs by more than this from the other "
-        "image shifted by up to 12 px (the smallest box difference over the shifts): a render that is only "
-        "misaligned shows what the target shows a little further on, a stranger what it shows nowhere near.",
+        "render) counts as other content only where it still differs by more than this once shifted by up to "
+        "12 px against the other image (the smallest box difference over the shifts): a render that is only "
+        "misaligned agrees once shifted. Around the hole both are shifted in turn, and a region that either "
+        "leaves different is other content: shifting the render explains away a stranger narrower than the "
+        "shift, shifting the target a smooth render over a textured target.",
     )
     stranger_unexplained: bool = setting(
         True,
         "Also refuse the render's content in the hole that the target around the hole does not explain "
-        "(patch by patch, where the two agree) and that touches a refused stranger: the rest of a passer-by "
-        "whose own edges are too weak to stop the growth from the target's side.",
+        "(patch by patch, where the two agree) and that touches a refused stranger, where it is at most a "
+        "tenth of the hole the render covers: the rest of a passer-by whose own edges are too weak to stop "
+        "the growth from the target's side.",
     )
     cut_object: Literal["off", "several", "always"] = setting(
         "several",

@@ -19,6 +19,10 @@ STRANGER_TEST_SIDE = 640
 #: Long side (px) at which a stranger's unexplained continuation is found: a k-d tree query per
 #: hole patch, and a passer-by's clothes need no finer detail.
 NOVELTY_TEST_SIDE = 320
+#: Largest share of the hole the render covers that a stranger's unexplained continuation may be.
+_CONTINUATION_SHARE = 0.1
+#: What the target's hole holds while it is shifted: a level no image has.
+_NOWHERE = np.float32(1e4)
 
 
 def strangers(
@@ -95,12 +99,12 @@ def continuation(
     strangers :func:`strangers` refused): the rest of a passer-by whose white shirt the watershed
     took for the pale steps around it. Run with the long side at most :data:`NOVELTY_TEST_SIDE`.
 
-    >>> hole = np.zeros((40, 60), bool); hole[10:30, 20:40] = True
-    >>> target = np.full((40, 60, 3), 120, np.uint8); target[hole] = 0
-    >>> render = target.copy(); render[hole] = 120; render[12:28, 30:34] = 20; render[20:24, 22:26] = 230
-    >>> found = np.zeros_like(hole); found[12:14, 30:34] = True  # the top of a stranger
+    >>> hole = np.zeros((60, 100), bool); hole[10:50, 20:80] = True
+    >>> target = np.full((60, 100, 3), 120, np.uint8); target[hole] = 0
+    >>> render = target.copy(); render[hole] = 120; render[12:40, 48:52] = 20; render[30:34, 25:29] = 230
+    >>> found = np.zeros_like(hole); found[12:14, 48:52] = True  # the top of a stranger
     >>> out = continuation(render, target, hole, np.ones_like(hole), found, (720, 1280), ScreenConfig())
-    >>> bool(out[14:26, 30:34].all()), bool(out[20:24, 22:26].any())  # his legs; not another thing
+    >>> bool(out[14:38, 48:52].all()), bool(out[30:34, 25:29].any())  # his legs; not another thing
     (True, False)
     """
     from .surface import unexplained
@@ -121,10 +125,18 @@ def continuation(
         return np.zeros(hole.shape, bool)
     level = t.astype(np.float32) + np.median(r[ring].astype(np.float32) - t[ring], axis=0)
     agree = ring & (cv2.blur(np.abs(r - level).mean(axis=2), (3, 3)) < sc.stranger_agreement)
-    novel = unexplained(r, s_hole & s_alpha, agree)
-    _, labels = cv2.connectedComponents(novel.astype(np.uint8), connectivity=8)
-    touched = np.unique(labels[cv2.dilate(s_found.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0])
-    grown = np.isin(labels, touched[touched > 0])
+    novel = unexplained(r, s_hole & s_alpha, agree) & ~s_found
+    _, labels, stats, _ = cv2.connectedComponentsWithStats(novel.astype(np.uint8), connectivity=8)
+    # A passer-by is a small part of what the render shows in the hole: larger unexplained content
+    # is the background a reference sees from elsewhere (a wide baseline, a disocclusion), which a
+    # disagreeing speck beside it must not take down with it.
+    most = _CONTINUATION_SHARE * np.count_nonzero(s_hole & s_alpha)
+    near = cv2.dilate(s_found.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+    touched = np.unique(labels[near & novel])
+    grown = np.zeros(s_hole.shape, bool)
+    for i in touched[touched > 0]:
+        if stats[i, cv2.CC_STAT_AREA] <= most:
+            grown |= labels == i
     return (cv2.resize(grown.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) > 0) & alpha & hole
 
 
@@ -141,13 +153,17 @@ def _strangers(
     raw = np.abs(render - level).mean(axis=2)
     diff = cv2.blur(raw, (k, k))
     # Both the box mean and the pixel itself: the mean alone spreads a stranger's edge outwards. A
-    # render that is only misaligned (depth off at an occlusion edge) shows what the target shows a
-    # little further on; a stranger shows what the target shows nowhere near. So the target is
-    # shifted, not the render: shifting the render moved a stranger narrower than the reach (a
-    # passer-by a few pixels wide in a far crowd) off the pixel, and the ground beside him agreed.
+    # render that is only misaligned (depth off at an occlusion edge) agrees with the target once
+    # either is shifted a little; other content disagrees with one of the two shifted. The render
+    # shifted finds the ground beside a stranger narrower than the reach (a passer-by a few pixels
+    # wide) and agrees there; the target shifted finds a smooth render's colour somewhere in a
+    # textured target. The target's blanked hole matches nothing (a dark stranger at its edge
+    # matched its zeros).
     reach = 12.0 * px
     seeds = ring & (diff > sc.stranger_threshold) & (raw > sc.stranger_threshold)
-    seeds &= shifted_min_diff(level, render, k, reach) > sc.stranger_shift_threshold
+    fixed_target = shifted_min_diff(render, level, k, reach)
+    fixed_render = shifted_min_diff(np.where(hole[..., None], _NOWHERE, level), render, k, reach)
+    seeds &= np.maximum(fixed_target, fixed_render) > sc.stranger_shift_threshold
     # An opening removes the thin lines that misalignment leaves along edges.
     m = max(3, odd_px(sc.stranger_min_px / 2 * px))
     seeds = cv2.morphologyEx(seeds.astype(np.uint8), cv2.MORPH_OPEN, np.ones((m, m), np.uint8))
