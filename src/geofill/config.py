@@ -1011,10 +1011,10 @@ class ScreenConfig:
     )
     stranger_unexplained: bool = setting(
         True,
-        "Also refuse the render's content in the hole that the target around the hole does not explain "
-        "(patch by patch, where the two agree) and that touches a refused stranger, where it is at most a "
-        "tenth of the hole the render covers: the rest of a passer-by whose own edges are too weak to stop "
-        "the growth from the target's side.",
+        "When the hole shows something to remove, also refuse the render's content in the hole that the "
+        "target around the hole does not explain (patch by patch, where the two agree) and that touches a "
+        "refused stranger, where it is at most a tenth of the hole the render covers: the rest of a "
+        "passer-by whose own edges are too weak to stop the growth from the target's side.",
     )
     cut_object: Literal["off", "several", "always"] = setting(
         "several",

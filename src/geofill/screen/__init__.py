@@ -164,6 +164,7 @@ def screen_render(
             refined.alpha[rows, cols] & ~refused[rows, cols],
             hole.shape,
             sc,
+            removal=shown is not None,
         )
         refused |= refused_stranger
     if not refused.any():

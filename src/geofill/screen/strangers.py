@@ -76,10 +76,15 @@ def stranger_region(
     alpha: np.ndarray,
     shape: tuple[int, ...],
     sc: ScreenConfig,
+    removal: bool,
 ) -> np.ndarray:
-    """:func:`strangers` grown by :func:`continuation` where ``sc.stranger_unexplained``."""
+    """:func:`strangers`, grown by :func:`continuation` where ``sc.stranger_unexplained`` and the
+    hole shows something to remove (``removal``). Only then: a brush over an object takes in the
+    surface the ring shows, so that content the ring does not explain there is more likely an
+    occluder, while a hole over the background itself holds what the ring does not show (on the
+    multi-reference sets the continuation cost restoration 0.19 dB, 1.35 on one set)."""
     found = strangers(render, target, hole, alpha, shape, sc)
-    if sc.stranger_unexplained and found.any():
+    if removal and sc.stranger_unexplained and found.any():
         found |= continuation(render, target, hole, alpha, found, shape, sc)
     return found
 
