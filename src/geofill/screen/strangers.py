@@ -36,7 +36,7 @@ def strangers(
     """Hole pixels of a window (covered by ``alpha``) whose render continues content that the target
     does not show around the hole: regions of the render within ``sc.stranger_ring_px`` of the hole
     that disagree with ``target`` (after the median colour difference there is taken out; over
-    ``sc.stranger_threshold``, and over ``sc.stranger_shift_threshold`` with the render shifted by
+    ``sc.stranger_threshold``, and over ``sc.stranger_shift_threshold`` with either of the two shifted by
     up to 12 px; wide and large enough, near the hole) are grown into it by the watershed, against
     the pixels that agree with the target (under ``sc.stranger_agreement``). ``shape``: the full
     target's, for pixel scaling. Runs with the window's long side at most :data:`STRANGER_TEST_SIDE`.
@@ -81,8 +81,8 @@ def stranger_region(
     """:func:`strangers`, grown by :func:`continuation` where ``sc.stranger_unexplained`` and the
     hole shows something to remove (``removal``). Only then: a brush over an object takes in the
     surface the ring shows, so that content the ring does not explain there is more likely an
-    occluder, while a hole over the background itself holds what the ring does not show (on the
-    multi-reference sets the continuation cost restoration 0.19 dB, 1.35 on one set)."""
+    occluder, while a hole over the background itself holds what the ring does not show (there it
+    cost the multi-reference sets' restoration: docs/architecture.md)."""
     found = strangers(render, target, hole, alpha, shape, sc)
     if removal and sc.stranger_unexplained and found.any():
         found |= continuation(render, target, hole, alpha, found, shape, sc)
