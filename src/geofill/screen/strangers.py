@@ -54,20 +54,19 @@ def strangers(
     if f == 1.0:
         return _strangers(render, target, hole, alpha, px, sc)
     size = (max(round(w * f), 1), max(round(h * f), 1))
+
+    def small(mask: np.ndarray) -> np.ndarray:
+        return cv2.resize(mask.astype(np.uint8), size, interpolation=cv2.INTER_NEAREST) > 0
+
     found = _strangers(
         cv2.resize(render, size, interpolation=cv2.INTER_AREA),
         cv2.resize(target, size, interpolation=cv2.INTER_AREA),
-        _mask_at(hole, size),
-        _mask_at(alpha, size),
+        small(hole),
+        small(alpha),
         px,
         sc,
     )
-    return _mask_at(found, (w, h)) & alpha & hole
-
-
-def _mask_at(mask: np.ndarray, size: tuple[int, int]) -> np.ndarray:
-    """``mask`` (bool) resized to ``size`` (width, height), nearest pixel."""
-    return cv2.resize(mask.astype(np.uint8), size, interpolation=cv2.INTER_NEAREST) > 0
+    return (cv2.resize(found.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) > 0) & alpha & hole
 
 
 def stranger_region(
@@ -118,9 +117,13 @@ def continuation(
     h, w = hole.shape
     f = min(1.0, NOVELTY_TEST_SIDE / max(h, w))
     size = (max(round(w * f), 1), max(round(h * f), 1))
+
+    def small(mask: np.ndarray) -> np.ndarray:
+        return cv2.resize(mask.astype(np.uint8), size, interpolation=cv2.INTER_NEAREST) > 0
+
     r = cv2.resize(render, size, interpolation=cv2.INTER_AREA)
     t = cv2.resize(target, size, interpolation=cv2.INTER_AREA)
-    s_hole, s_alpha, s_found = (_mask_at(m, size) for m in (hole, alpha, found))
+    s_hole, s_alpha, s_found = small(hole), small(alpha), small(found)
     px = config_px(1.0, shape) * f
     ring = s_alpha & known_ring(s_hole, sc.stranger_ring_px * px)
     if not ring.any():
@@ -139,7 +142,7 @@ def continuation(
     for i in touched[touched > 0]:
         if stats[i, cv2.CC_STAT_AREA] <= most:
             grown |= labels == i
-    return _mask_at(grown, (w, h)) & alpha & hole
+    return (cv2.resize(grown.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) > 0) & alpha & hole
 
 
 def _strangers(
