@@ -205,6 +205,14 @@ SECTIONS = [
         "painter.md",
     ),
     Section(
+        "structure_scale",
+        "The painter's structure scale against its two targets (`benchmarks/studies/structure_scale.py`)",
+        "The `painter` cases (first 8 DEV pairs at 720 px, the stroke hole painted whole), Telea and the "
+        "exemplar painter at each `inpaint.structure_sigma_px` (0: exemplars only; default 4): whether one "
+        "scale gives both a hole PSNR at least Telea's and a gradient ratio of 0.8-1.2.",
+        [PY, "benchmarks/studies/structure_scale.py"],
+    ),
+    Section(
         "painter_fills",
         "The painter inside reference fills (`geofill eval --methods geofill,geofill_telea`)",
         "The default (exemplar painter for what the references leave uncovered) against the `telea` preset "
