@@ -63,7 +63,9 @@ def table(rows: dict) -> str:
     both = [
         n
         for n, m in mean.items()
-        if n not in ("truth", "telea") and m["psnr"] >= telea and GRADIENT_RANGE[0] <= m["grad"] <= GRADIENT_RANGE[1]
+        if n not in ("truth", "telea")
+        and m["psnr"] >= telea
+        and GRADIENT_RANGE[0] <= m["grad"] <= GRADIENT_RANGE[1]
     ]
     lines += ["", f"scales meeting both targets: {', '.join(both) if both else 'none'}"]
     return "\n".join(lines)
