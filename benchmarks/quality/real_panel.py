@@ -53,6 +53,7 @@ from geofill.evaluation.baselines import BaselineError, homography_fill, opencv_
 from geofill.evaluation.metrics import leak
 from geofill.evaluation.pairs import load_pair
 from geofill.pipeline import FillReport, fill
+from geofill.screen.colours import colour_bins
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root: benchmarks.common
 from benchmarks.common import ROOT
@@ -170,13 +171,6 @@ def echo(output: np.ndarray, case: Case, background: np.ndarray) -> float:
     return max(0.0, 1.0 - best / max(reference, 1e-6))
 
 
-def _colour_bins(image: np.ndarray) -> np.ndarray:
-    """HxW colour-bin index: CIELAB quantised to 4 lightness x 16 x 16 chroma bins (a colour's
-    kind, not its shade: a red car in sun and shade falls in few bins)."""
-    lab = cv2.cvtColor(image, cv2.COLOR_RGB2LAB)
-    return (lab[..., 0] // 64).astype(np.int32) * 256 + (lab[..., 1] // 16) * 16 + lab[..., 2] // 16
-
-
 def tint(output: np.ndarray, case: Case) -> float | None:
     """The object's own colours back anywhere in the hole, at any size: the number of hole pixels of
     ``output`` in the object's distinctive colour bins (4x more frequent in the object than in a
@@ -188,7 +182,7 @@ def tint(output: np.ndarray, case: Case) -> float | None:
         cv2.dilate(case.hole.astype(np.uint8), np.ones((2 * width + 1,) * 2, np.uint8)).astype(bool)
         & ~case.hole
     )
-    bins_in = _colour_bins(case.target)
+    bins_in = colour_bins(case.target)
     n_bins = 4 * 256
     in_object = np.bincount(bins_in[case.object_mask], minlength=n_bins) / case.object_mask.sum()
     in_ring = np.bincount(bins_in[ring], minlength=n_bins) / max(int(ring.sum()), 1)
@@ -196,7 +190,7 @@ def tint(output: np.ndarray, case: Case) -> float | None:
     before = int(distinctive[bins_in[case.hole]].sum())
     if before < 0.1 * case.object_mask.sum():
         return None
-    return float(distinctive[_colour_bins(output)[case.hole]].sum()) / before
+    return float(distinctive[colour_bins(output)[case.hole]].sum()) / before
 
 
 def where_from(report: FillReport) -> str:

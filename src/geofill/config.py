@@ -980,6 +980,12 @@ class ScreenConfig:
         "reference wherever the render puts it. Compared patch by patch (5-px CIELAB patches, nearest "
         "neighbours), within the distance at which the ring's own patches explain each other.",
     )
+    refuse_object_colours: bool = setting(
+        True,
+        "In a removal, also refuse render pixels in the removed object's own colours (those the hole's "
+        "content has at least 4 times as often as the ring around it, which hardly has them; CIELAB bins), "
+        "in parts at least half stranger_min_px across, wherever the render puts them.",
+    )
     surface_search_px: Annotated[float, Range(0, 1000)] = setting(
         16.0,
         "That match is searched within this distance (px) of where the surface puts it (the pose and the "

@@ -1,0 +1,97 @@
+"""The removed object's own colours, wherever a render brings them back.
+
+The depth, surface and look tests leave pieces of the object they cannot place: on the panel's
+apple, slivers of its red from two of the four frames, 9-50 px from what those tests refused (the
+patch test runs at 320 px, where a sliver a few pixels wide is a speck it opens away). What such
+pieces share is colour: the object's own, which the ring around the hole does not have (the
+brushed margin shows the ring's background, so the margin's colours are the ring's). A colour is the
+object's when the hole's content has it at least :data:`DISTINCT_RATIO` times as often as the ring
+does and the ring hardly has it at all (CIELAB bins: 4 lightness x 16 x 16 chroma, so shade does not
+matter; the bins beside it count too, as the same colour in another frame can cross a bin's edge).
+Render pixels of those colours, in parts at least half ``screen.stranger_min_px`` across, are the
+object coming back. A background the object hid, in a colour the ring does not show, is refused
+with it: painted, not copied.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from ..config import ScreenConfig
+from ..utils.distance import known_ring
+from ..utils.resolution import config_px
+
+#: A colour bin is the object's when the hole's content has it this many times as often as the ring
+#: around the hole, at least :data:`MIN_SHARE` of the hole's pixels have it and at most
+#: :data:`MAX_RING_SHARE` of the ring's: a colour the ring shows at all may be the background the
+#: object hides (the lit brick of a doorway behind a pedestrian, 2.7 % of the ring, 16 % of the hole).
+DISTINCT_RATIO = 4.0
+MIN_SHARE = 0.01
+MAX_RING_SHARE = 0.005
+#: ... and at least this share of its hole pixels have a 4-neighbour of that colour (a random
+#: noise object has each colour on about 1 % of the hole, scattered: 0-6 % have such a neighbour).
+COHERENT = 0.5
+#: Width of the ring the colours are counted on, px at 1280.
+RING_PX = 30.0
+_BINS = 4 * 16 * 16
+
+
+def _beside_alike(bins: np.ndarray) -> np.ndarray:
+    """HxW bool: the pixels with a 4-neighbour in the same bin."""
+    out = np.zeros(bins.shape, bool)
+    same_x, same_y = bins[:, 1:] == bins[:, :-1], bins[1:] == bins[:-1]
+    out[:, 1:] |= same_x
+    out[:, :-1] |= same_x
+    out[1:] |= same_y
+    out[:-1] |= same_y
+    return out
+
+
+def colour_bins(image: np.ndarray) -> np.ndarray:
+    """HxW int32: each pixel's CIELAB bin (4 lightness x 16 x 16 chroma) of ``image`` (HxWx3 uint8 RGB).
+
+    >>> colour_bins(np.array([[[255, 0, 0], [0, 0, 255]]], np.uint8)).tolist()
+    [[732, 449]]
+    """
+    lab = cv2.cvtColor(image, cv2.COLOR_RGB2LAB).astype(np.int32)
+    return (lab[..., 0] // 64) * 256 + (lab[..., 1] // 16) * 16 + lab[..., 2] // 16
+
+
+def object_colours(
+    render: np.ndarray,
+    covered: np.ndarray,
+    shown: np.ndarray,
+    hole: np.ndarray,
+    shape: tuple[int, ...],
+    sc: ScreenConfig,
+) -> np.ndarray:
+    """HxW bool: the ``covered`` hole pixels where ``render`` (HxWx3 uint8, colour-corrected to the
+    target) shows the removed object's own colours (see the module docstring). ``shown``: the
+    target as given, its hole showing the object; ``shape``: the full image's (for pixel units)."""
+    ring = known_ring(hole, config_px(RING_PX, shape))
+    bins = colour_bins(shown)
+    count = np.bincount(bins[hole], minlength=_BINS)
+    in_hole = count / max(int(hole.sum()), 1)
+    in_ring = np.bincount(bins[ring], minlength=_BINS) / max(int(ring.sum()), 1)
+    rare = in_ring <= MAX_RING_SHARE
+    # An object's colour lies in regions; noise puts each colour on scattered pixels.
+    together = np.bincount(bins[hole & _beside_alike(bins)], minlength=_BINS) >= COHERENT * count
+    distinct = (in_hole >= MIN_SHARE) & (in_hole >= DISTINCT_RATIO * in_ring) & rare & together
+    if not distinct.any():
+        return np.zeros(hole.shape, bool)
+    # The same colour in another frame can fall in the next chroma bin: the bins beside an object's
+    # colour count too, where the ring hardly has them either.
+    square = np.ones((3, 3), np.uint8)
+    beside = np.stack([cv2.dilate(g, square) for g in distinct.reshape(4, 16, 16).astype(np.uint8)])
+    distinct |= beside.ravel().astype(bool) & rare
+    found = covered & distinct[colour_bins(render)]
+    side = max(3, round(config_px(sc.stranger_min_px, shape) / 2))
+    opened = cv2.morphologyEx(found.astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
+    _, parts, stats, _ = cv2.connectedComponentsWithStats(opened, connectivity=8)
+    big = stats[:, cv2.CC_STAT_AREA] >= side * side
+    big[0] = False
+    kept = big[parts]
+    # The piece's own edge blends it with what lies behind: taken with it.
+    grown = cv2.dilate(kept.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5))) > 0
+    return grown & covered
