@@ -59,6 +59,38 @@ def test_a_colour_the_ring_shows_is_kept_though_the_object_has_it_too():
     assert not object_colours(render, hole, shown, hole, (720, 1280), ScreenConfig()).any()
 
 
+def test_a_colour_a_wider_ring_shows_is_kept_though_the_narrow_ring_lacks_it():
+    """Red roses on a wallpaper, none within the 30-px ring but some within 90 px, behind a red
+    object: the rose the render shows in the hole is the wallpaper, not the object; in a window
+    that holds the narrow ring and no rose (the wider ring's shares not given) it is refused."""
+    h, w = 400, 400
+    yy, xx = np.mgrid[0:h, 0:w]
+    shown = np.clip(
+        np.array([200.0, 185.0, 170.0]) + np.random.default_rng(0).normal(0, 8, (h, w, 1)), 0, 255
+    )
+    shown = shown.astype(np.uint8)
+    roses = np.zeros((h, w), bool)
+    for cy in range(20, h, 90):
+        for cx in range(20, w, 90):
+            roses |= (yy - cy) ** 2 + (xx - cx) ** 2 <= 8 * 8
+    hole = (yy - 200) ** 2 + (xx - 200) ** 2 <= 50 * 50
+    ring = ((yy - 200) ** 2 + (xx - 200) ** 2 <= 85 * 85) & ~hole
+    roses &= ~ring  # the ring shows none
+    shown[roses] = (200, 30, 50)
+    shown[(yy - 200) ** 2 + (xx - 200) ** 2 <= 38 * 38] = (205, 35, 55)
+    render = shown.copy()
+    render[hole] = (200, 185, 170)
+    rose = hole & ((yy - 200) ** 2 + (xx - 190) ** 2 <= 12 * 12)
+    render[rose] = (195, 35, 50)
+    assert 0.02 < roses.mean() < 0.05
+    assert not object_colours(render, hole, shown, hole, (720, 1280), ScreenConfig()).any()
+    window = slice(119, 282), slice(119, 282)  # holds the hole and its ring, no rose
+    refused = object_colours(
+        render[window], hole[window], shown[window], hole[window], (720, 1280), ScreenConfig()
+    )
+    assert refused[rose[window]].all()
+
+
 def test_the_apples_red_does_not_come_back_from_the_frames_circling_it(multiview_dir):
     """The panel's apple on a worktop, four video frames as references, all showing it: slivers of
     its red came back from two of them (222 red pixels in this hole; the panel's: 265, 9-50 px from what

@@ -34,7 +34,7 @@ from ..render import RenderResult
 from ..utils.distance import known_ring
 from ..utils.resolution import config_px, odd_px
 from .appearance import locate_by_appearance
-from .colours import object_colours
+from .colours import object_colours, wide_ring_shares
 from .depth import DepthLocation, locate_by_depth, locate_together
 from .strangers import stranger_region, strangers, watershed_region
 from .surface import like_the_object, locate_on_surface
@@ -152,7 +152,13 @@ def screen_render(
             )
         if sc.refuse_object_colours:
             refused_object[rows, cols] |= object_colours(
-                refined.image[rows, cols], covered, shown[rows, cols], hole[rows, cols], hole.shape, sc
+                refined.image[rows, cols],
+                covered,
+                shown[rows, cols],
+                hole[rows, cols],
+                hole.shape,
+                sc,
+                wide_ring_shares(shown, hole, hole.shape),
             )
     refused = np.zeros(hole.shape, bool)
     for r in (refused_masked, refused_object):

@@ -9,8 +9,12 @@ object's when the hole's content has it at least :data:`DISTINCT_RATIO` times as
 does and the ring hardly has it at all (CIELAB bins: 4 lightness x 16 x 16 chroma, so shade does not
 matter; the bins beside it count too, as the same colour in another frame can cross a bin's edge).
 Render pixels of those colours, in parts at least half ``screen.stranger_min_px`` across, are the
-object coming back. A background the object hid, in a colour the ring does not show, is refused
-with it: painted, not copied.
+object coming back. A colour a wider ring (:data:`WIDE_RING_PX`) shows on more than
+:data:`MAX_RING_SHARE` of its pixels is no sign of the object either: a repeating background (the
+fox's wallpaper roses, behind an orange cutout of their reds) can miss the narrow ring and lie a
+little farther out. The whole photo is too wide: the apple's shadow, a hand's width from a hole,
+shares the grey of a pasted shoe the hole shows. A background the object hid, in a colour the photo
+shows nowhere near the hole, is refused with it: painted, not copied.
 """
 
 from __future__ import annotations
@@ -21,6 +25,7 @@ import numpy as np
 from ..config import ScreenConfig
 from ..utils.distance import known_ring
 from ..utils.resolution import config_px
+from ..utils.windows import mask_window
 
 #: A colour bin is the object's when the hole's content has it this many times as often as the ring
 #: around the hole, at least :data:`MIN_SHARE` of the hole's pixels have it and at most
@@ -32,8 +37,11 @@ MAX_RING_SHARE = 0.005
 #: ... and at least this share of its hole pixels have a 4-neighbour of that colour (a random
 #: noise object has each colour on about 1 % of the hole, scattered: 0-6 % have such a neighbour).
 COHERENT = 0.5
-#: Width of the ring the colours are counted on, px at 1280.
+#: Width of the ring the colours are counted on, and of the wider one (see the module docstring),
+#: px at 1280. On the fox's wallpaper the roses' reds are 0.1-0.3 % of the narrow ring and 1.5-2.5 %
+#: of the wider; the apple's own reds at most 0.1 % of either.
 RING_PX = 30.0
+WIDE_RING_PX = 90.0
 _BINS = 4 * 16 * 16
 
 
@@ -58,6 +66,23 @@ def colour_bins(image: np.ndarray) -> np.ndarray:
     return (lab[..., 0] // 64) * 256 + (lab[..., 1] // 16) * 16 + lab[..., 2] // 16
 
 
+def colour_shares(image: np.ndarray, where: np.ndarray) -> np.ndarray:
+    """Per colour bin (:func:`colour_bins`), its share of the ``where`` pixels of ``image``.
+
+    >>> colour_shares(np.array([[[255, 0, 0], [0, 0, 255]]], np.uint8), np.array([[True, False]]))[732]
+    np.float64(1.0)
+    """
+    return np.bincount(colour_bins(image)[where], minlength=_BINS) / max(int(np.count_nonzero(where)), 1)
+
+
+def wide_ring_shares(shown: np.ndarray, hole: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+    """:func:`colour_shares` of ``shown``'s known pixels within :data:`WIDE_RING_PX` of ``hole``
+    (worked on the hole's box grown by that much). ``shape``: the full image's (for pixel units)."""
+    px = config_px(WIDE_RING_PX, shape)
+    rows, cols = mask_window(hole, int(np.ceil(px)) + 1)
+    return colour_shares(shown[rows, cols], known_ring(hole[rows, cols], px))
+
+
 def object_colours(
     render: np.ndarray,
     covered: np.ndarray,
@@ -65,16 +90,21 @@ def object_colours(
     hole: np.ndarray,
     shape: tuple[int, ...],
     sc: ScreenConfig,
+    wide: np.ndarray | None = None,
 ) -> np.ndarray:
     """HxW bool: the ``covered`` hole pixels where ``render`` (HxWx3 uint8, colour-corrected to the
     target) shows the removed object's own colours (see the module docstring). ``shown``: the
-    target as given, its hole showing the object; ``shape``: the full image's (for pixel units)."""
+    target as given, its hole showing the object; ``shape``: the full image's (for pixel units);
+    ``wide``: :func:`wide_ring_shares` of the whole photo when ``shown`` is a window of it that
+    may not hold the wider ring (default: found in ``shown``)."""
     ring = known_ring(hole, config_px(RING_PX, shape))
     bins = colour_bins(shown)
     count = np.bincount(bins[hole], minlength=_BINS)
     in_hole = count / max(int(hole.sum()), 1)
     in_ring = np.bincount(bins[ring], minlength=_BINS) / max(int(ring.sum()), 1)
-    rare = in_ring <= MAX_RING_SHARE
+    if wide is None:
+        wide = wide_ring_shares(shown, hole, shape)
+    rare = (in_ring <= MAX_RING_SHARE) & (wide <= MAX_RING_SHARE)
     # An object's colour lies in regions; noise puts each colour on scattered pixels.
     together = np.bincount(bins[hole & _beside_alike(bins)], minlength=_BINS) >= COHERENT * count
     distinct = (in_hole >= MIN_SHARE) & (in_hole >= DISTINCT_RATIO * in_ring) & rare & together
