@@ -9,12 +9,14 @@ object's when the hole's content has it at least :data:`DISTINCT_RATIO` times as
 does and the ring hardly has it at all (CIELAB bins: 4 lightness x 16 x 16 chroma, so shade does not
 matter; the bins beside it count too, as the same colour in another frame can cross a bin's edge).
 Render pixels of those colours, in parts at least half ``screen.stranger_min_px`` across, are the
-object coming back. A colour a wider ring (:data:`WIDE_RING_PX`) shows on more than
-:data:`MAX_RING_SHARE` of its pixels is no sign of the object either: a repeating background (the
-fox's wallpaper roses, behind an orange cutout of their reds) can miss the narrow ring and lie a
-little farther out. The whole photo is too wide: the apple's shadow, a hand's width from a hole,
-shares the grey of a pasted shoe the hole shows. A background the object hid, in a colour the photo
-shows nowhere near the hole, is refused with it: painted, not copied.
+object coming back. The hole must have the colour :data:`DISTINCT_RATIO` times as often as a wider
+ring (:data:`WIDE_RING_PX`) too: a repeating background (the fox's wallpaper roses, behind an orange
+cutout with some of their reds) can miss the narrow ring and lie a little farther out, as common
+there as in the hole. A cap on the wider ring's share alone, as on the narrow one's, was too blunt:
+a textured box's own colour on 2.5 % of the wider ring (a synthetic scene repeats its textures) came
+back with it, and over the whole photo the apple's shadow shares the grey of a pasted shoe. A
+background the object hid, in a colour not common near the hole, is refused with it: painted, not
+copied.
 """
 
 from __future__ import annotations
@@ -38,8 +40,8 @@ MAX_RING_SHARE = 0.005
 #: noise object has each colour on about 1 % of the hole, scattered: 0-6 % have such a neighbour).
 COHERENT = 0.5
 #: Width of the ring the colours are counted on, and of the wider one (see the module docstring),
-#: px at 1280. On the fox's wallpaper the roses' reds are 0.1-0.3 % of the narrow ring and 1.5-2.5 %
-#: of the wider; the apple's own reds at most 0.1 % of either.
+#: px at 1280. On the fox's wallpaper the roses' main red is 0.1 % of the narrow ring, 1.5 % of the
+#: wider and 2.4 % of the hole; the apple's own reds at most 0.1 % of either ring.
 RING_PX = 30.0
 WIDE_RING_PX = 90.0
 _BINS = 4 * 16 * 16
@@ -104,17 +106,19 @@ def object_colours(
     in_ring = np.bincount(bins[ring], minlength=_BINS) / max(int(ring.sum()), 1)
     if wide is None:
         wide = wide_ring_shares(shown, hole, shape)
-    rare = (in_ring <= MAX_RING_SHARE) & (wide <= MAX_RING_SHARE)
+    rare = in_ring <= MAX_RING_SHARE
     # An object's colour lies in regions; noise puts each colour on scattered pixels.
     together = np.bincount(bins[hole & _beside_alike(bins)], minlength=_BINS) >= COHERENT * count
-    distinct = (in_hole >= MIN_SHARE) & (in_hole >= DISTINCT_RATIO * in_ring) & rare & together
+    distinct = (
+        (in_hole >= MIN_SHARE) & (in_hole >= DISTINCT_RATIO * np.maximum(in_ring, wide)) & rare & together
+    )
     if not distinct.any():
         return np.zeros(hole.shape, bool)
     # The same colour in another frame can fall in the next chroma bin: the bins beside an object's
-    # colour count too, where the ring hardly has them either.
+    # colour count too, where neither ring has them more than the narrow ring may.
     square = np.ones((3, 3), np.uint8)
     beside = np.stack([cv2.dilate(g, square) for g in distinct.reshape(4, 16, 16).astype(np.uint8)])
-    distinct |= beside.ravel().astype(bool) & rare
+    distinct |= beside.ravel().astype(bool) & rare & (wide <= MAX_RING_SHARE)
     found = covered & distinct[colour_bins(render)]
     side = max(3, round(config_px(sc.stranger_min_px, shape) / 2))
     opened = cv2.morphologyEx(found.astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
