@@ -11,6 +11,7 @@ import numpy as np
 from ..config import ScreenConfig
 from ..screen.strangers import shifted_min_diff, watershed_region
 from ..utils.distance import known_ring
+from ..utils.parts import large_parts
 from ..utils.resolution import config_px, odd_px
 
 #: Long side (px) at which the test between references runs: it compares regions tens of pixels wide
@@ -145,11 +146,7 @@ def _cross_strangers(
     for i in range(n):
         if not seeds[i].any():
             continue
-        opened = cv2.morphologyEx(seeds[i].astype(np.uint8), cv2.MORPH_OPEN, np.ones((m, m), np.uint8))
-        _, labels, stats, _ = cv2.connectedComponentsWithStats(opened, connectivity=8)
-        big = stats[:, cv2.CC_STAT_AREA] >= min_area
-        big[0] = False
-        seeded = big[labels]
+        seeded = large_parts(seeds[i], m, min_area)
         if not seeded.any():
             continue
         # The render's pixels that agree with another render, or with the target around the hole.

@@ -26,6 +26,7 @@ import numpy as np
 
 from ..config import ScreenConfig
 from ..utils.distance import known_ring
+from ..utils.parts import large_parts
 from ..utils.resolution import config_px
 from ..utils.windows import mask_window
 
@@ -121,11 +122,7 @@ def object_colours(
     distinct |= beside.ravel().astype(bool) & rare & (wide <= MAX_RING_SHARE)
     found = covered & distinct[colour_bins(render)]
     side = max(3, round(config_px(sc.stranger_min_px, shape) / 2))
-    opened = cv2.morphologyEx(found.astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
-    _, parts, stats, _ = cv2.connectedComponentsWithStats(opened, connectivity=8)
-    big = stats[:, cv2.CC_STAT_AREA] >= side * side
-    big[0] = False
-    kept = big[parts]
+    kept = large_parts(found, 3, side * side)
     # The piece's own edge blends it with what lies behind: taken with it.
     grown = cv2.dilate(kept.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5))) > 0
     return grown & covered

@@ -11,6 +11,7 @@ import numpy as np
 
 from ..config import ScreenConfig
 from ..utils.distance import known_ring
+from ..utils.parts import large_parts
 from ..utils.resolution import config_px, odd_px
 
 #: Long side (px) at which the stranger test runs: it finds regions tens of pixels wide, and at full
@@ -171,17 +172,10 @@ def _strangers(
     seeds &= np.maximum(fixed_target, fixed_render) > sc.stranger_shift_threshold
     # An opening removes the thin lines that misalignment leaves along edges.
     m = max(3, odd_px(sc.stranger_min_px / 2 * px))
-    seeds = cv2.morphologyEx(seeds.astype(np.uint8), cv2.MORPH_OPEN, np.ones((m, m), np.uint8))
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(seeds, connectivity=8)
     # Within the shift's reach of the hole: the band a shift explains lies between.
     near = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (odd_px(2 * reach + 3),) * 2)
     touching = cv2.dilate(hole.astype(np.uint8), near) > 0
-    big = stats[:, cv2.CC_STAT_AREA] >= (sc.stranger_min_px * px) ** 2
-    keep = np.zeros(n, bool)
-    keep[np.unique(labels[touching & (labels > 0)])] = True
-    keep &= big
-    keep[0] = False
-    seeded = keep[labels]
+    seeded = large_parts(seeds, m, (sc.stranger_min_px * px) ** 2, touching)
     agree = ring & (diff < sc.stranger_agreement)
     if not seeded.any() or not agree.any():
         return np.zeros(hole.shape, bool)
