@@ -12,7 +12,7 @@ import cv2
 import numpy as np
 import pytest
 
-from geofill.composite import exemplar
+from geofill.composite import exemplar, surfaces
 from geofill.composite.exemplar import ExemplarSettings, complete
 from geofill.composite.inpaint import get_inpainter
 from geofill.composite.merge import merge_fill
@@ -304,3 +304,22 @@ def test_what_the_hole_shows_does_not_change_the_painted_pixels():
     blank[hole] = 0
     shown[hole] = (255, 0, 0)
     np.testing.assert_array_equal(complete(blank, hole), complete(shown, hole))
+
+
+def test_a_surface_on_both_sides_of_a_meeting_line_takes_the_side_the_other_one_leaves():
+    """Where two surfaces meet along a line across the hole, each takes its side of it. A shadow
+    band above a kerb with 60 % of its ring pixels near the kerb below it (stains on the road) and a
+    road wholly below: the band goes above. Its median alone put it below and the road above, up
+    the wall (the Lund street's cobbles climbing the yellow wall). A clear split is left as its
+    median says."""
+    labels = np.repeat([1, 2], 100)
+    near = np.ones(200, bool)
+    band_and_road = np.concatenate([np.full(40, -3.0), np.full(60, 4.0), np.full(100, 5.0)])
+    assert surfaces._side(band_and_road, near, labels, 1, 2) == -1.0
+    assert surfaces._side(band_and_road, near, labels, 2, 1) == 1.0
+    # Both surfaces spread over both sides: the median decides, as before.
+    mixed = np.concatenate([np.full(40, -3.0), np.full(60, 4.0), np.full(30, -5.0), np.full(70, 5.0)])
+    assert surfaces._side(mixed, near, labels, 1, 2) == 1.0
+    clean = np.concatenate([np.full(100, -3.0), np.full(100, 5.0)])
+    assert surfaces._side(clean, near, labels, 1, 2) == -1.0
+    assert surfaces._side(clean, near, labels, 2, 1) == 1.0

@@ -33,6 +33,8 @@ _TEXTURE_WEIGHT = 1.5
 #: (the rest: where the boundary turns, or runs along the hole's edge).
 _LINE_INLIERS = 0.4
 _LINE_PX = 2.0
+#: Share of a surface's ring pixels near the line on one side of it that makes that side its own.
+_SIDE_SHARE = 0.75
 #: Lines tried (through two boundary pixels each) in the search for the dominant one.
 _LINE_TRIALS = 200
 _LINE_POINTS = 4000
@@ -199,12 +201,26 @@ def _straighten(labels: np.ndarray, hole: np.ndarray, image: np.ndarray, ring_px
             bd, bc = dist[band], image[band]
             shift = max(np.arange(-ring_px / 2, ring_px / 2 + 0.5, 0.5), key=lambda d: _step(bd, bc, d))
             dist -= shift
-            ry, rx = np.nonzero(ring & (labels == a) & (np.abs(dist) <= ring_px))
-            side_a = np.sign(np.median(dist[ry, rx])) if ry.size else 0.0
+            side_a = _side(dist, ring & (np.abs(dist) <= ring_px), labels, a, b)
             if side_a == 0:
                 continue
             redo = pair & (hole | (ring & (np.abs(dist) <= ring_px)))
             labels[redo] = np.where(np.sign(dist[redo]) == side_a, a, b)
+
+
+def _side(dist: np.ndarray, near: np.ndarray, labels: np.ndarray, a: int, b: int) -> float:
+    """The side (sign of ``dist``) of the line that surface ``a`` takes: the side of the median of
+    its pixels of ``near``, unless surface ``b``'s pixels lie on that same side more consistently
+    (at least :data:`_SIDE_SHARE` of them, and a larger share than ``a``'s): then the other one.
+    0 where ``a`` has no such pixels or their median is on the line. (On the Lund street the
+    plinth's shadow lay on both sides of the kerb, the cobbles below it: the shadow's median alone
+    put the cobbles above the kerb, up the wall.)"""
+    da, db = dist[near & (labels == a)], dist[near & (labels == b)]
+    side = float(np.sign(np.median(da))) if da.size else 0.0
+    if side == 0 or not db.size:
+        return side
+    own_a, same_b = float(np.mean(np.sign(da) == side)), float(np.mean(np.sign(db) == side))
+    return -side if same_b >= max(_SIDE_SHARE, own_a) else side
 
 
 def _dominant_line(xs: np.ndarray, ys: np.ndarray) -> tuple[float, float, float, float] | None:
