@@ -107,8 +107,13 @@ def _within(tree: Any, points: np.ndarray, radius: float) -> np.ndarray:
     >>> d = tree.query(pts)[0]; r = float(np.median(d))  # one point lies exactly at r
     >>> bool((_within(tree, pts, r) == (d <= r)).all()), int((d == r).sum())
     (True, 1)
+    >>> bool(_within(tree, pts[:200], 0.0).all())  # each point lies at distance 0 from itself
+    True
     """
-    return tree.query(points, distance_upper_bound=radius * (1 + 1e-6), workers=-1)[0] <= radius
+    # A hair above the radius, relative and absolute: at radius 0 (a ring of one flat colour) a
+    # bound of exactly 0 finds nothing, not even the patches the ring holds itself.
+    bound = radius * (1 + 1e-6) + 1e-9
+    return tree.query(points, distance_upper_bound=bound, workers=-1)[0] <= radius
 
 
 #: The target's side of :func:`like_the_object` (its ring's patches and a k-d tree over the hole's
