@@ -201,10 +201,11 @@ def _straighten(labels: np.ndarray, hole: np.ndarray, image: np.ndarray, ring_px
             bd, bc = dist[band], image[band]
             shift = max(np.arange(-ring_px / 2, ring_px / 2 + 0.5, 0.5), key=lambda d: _step(bd, bc, d))
             dist -= shift
-            side_a = _side(dist, ring & (np.abs(dist) <= ring_px), labels, a, b)
+            near_line = ring & (np.abs(dist) <= ring_px)
+            side_a = _side(dist, near_line, labels, a, b)
             if side_a == 0:
                 continue
-            redo = pair & (hole | (ring & (np.abs(dist) <= ring_px)))
+            redo = pair & (hole | near_line)
             labels[redo] = np.where(np.sign(dist[redo]) == side_a, a, b)
 
 

@@ -91,8 +91,11 @@ def like_the_object(render: np.ndarray, shown: np.ndarray, hole: np.ndarray, rin
     space, core_tree = found
     hy, hx = np.nonzero(hole)
     rendered = space.patches(render, hy, hx)
-    by_core = _within(core_tree, space.reduce(rendered), space.scale)
-    out[hy, hx] = np.where(space.explains(rendered), 2, np.where(by_core, 1, 0))
+    explained = space.explains(rendered)
+    # Only what the ring does not explain is compared with the object's patches.
+    out[hy, hx] = np.where(explained, 2, 0)
+    rest = ~explained
+    out[hy[rest], hx[rest]] = _within(core_tree, space.reduce(rendered[rest]), space.scale)
     return out
 
 
