@@ -63,7 +63,7 @@ def unexplained(shown: np.ndarray, hole: np.ndarray, ring: np.ndarray) -> np.nda
     hy, hx = np.nonzero(hole)
     if space is None or len(hy) == 0:
         return out
-    out[hy, hx] = ~space.explains(space.patches(shown, hy, hx))
+    out[hy, hx] = ~space.explains(space.reduce(space.patches(shown, hy, hx)))
     return out
 
 
@@ -90,12 +90,12 @@ def like_the_object(render: np.ndarray, shown: np.ndarray, hole: np.ndarray, rin
         return out
     space, core_tree = found
     hy, hx = np.nonzero(hole)
-    rendered = space.patches(render, hy, hx)
+    rendered = space.reduce(space.patches(render, hy, hx))
     explained = space.explains(rendered)
     # Only what the ring does not explain is compared with the object's patches.
     out[hy, hx] = np.where(explained, 2, 0)
     rest = ~explained
-    out[hy[rest], hx[rest]] = _within(core_tree, space.reduce(rendered[rest]), space.scale)
+    out[hy[rest], hx[rest]] = _within(core_tree, rendered[rest], space.scale)
     return out
 
 
@@ -142,12 +142,12 @@ def _object_patches(shown: np.ndarray, hole: np.ndarray, ring: np.ndarray) -> tu
     space = _RingPatches.of(shown, ring)
     hy, hx = np.nonzero(hole)
     if space is not None and len(hy):
-        own = space.patches(shown, hy, hx)
+        own = space.reduce(space.patches(shown, hy, hx))
         core = ~space.explains(own)
         if core.any():
             from scipy.spatial import cKDTree
 
-            found = (space, cKDTree(space.reduce(own[core])))
+            found = (space, cKDTree(own[core]))
     with _OBJECT_LOCK:
         _OBJECT_CACHE[key] = found
         while len(_OBJECT_CACHE) > _OBJECT_CACHE_SIZE:
@@ -177,9 +177,9 @@ class _RingPatches:
     def reduce(self, patches: np.ndarray) -> np.ndarray:
         return (patches - self.mean) @ self.basis
 
-    def explains(self, patches: np.ndarray) -> np.ndarray:
-        """Whether each patch has a ring patch within :attr:`scale`."""
-        return _within(self.tree, self.reduce(patches), self.scale)
+    def explains(self, reduced: np.ndarray) -> np.ndarray:
+        """Whether each patch, reduced by :meth:`reduce`, has a ring patch within :attr:`scale`."""
+        return _within(self.tree, reduced, self.scale)
 
     @classmethod
     def of(cls, image: np.ndarray, ring: np.ndarray) -> _RingPatches | None:
